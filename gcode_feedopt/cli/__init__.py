@@ -1,0 +1,86 @@
+"""Command-line entry point: ``gcode-feedopt``.
+
+``gcode-feedopt in.gcode -o out.gcode --machine ender3pro`` optimizes a file (the default
+command, ``optimize``); PrusaSlicer calls ``gcode-feedopt --machine ender3pro PATH`` with the
+path last and expects the file edited in place. Sub-commands (``simulate``, ``predict``,
+``profile``, ...) live one per module in this package and are imported lazily, so that
+``gcode-feedopt --help`` stays fast and a broken optional stage cannot break the main job.
+
+This is the only layer that imports click. Library errors (FeedOptError) become one line
+on stderr and a non-zero exit here, in one place.
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+
+import click
+
+from .. import __version__
+from ..errors import FeedOptError
+
+#: sub-command name -> "module:attribute" (a click.Command), imported on first use.
+COMMANDS: dict[str, str] = {
+    "optimize": "gcode_feedopt.cli.optimize:optimize",
+    "profile": "gcode_feedopt.cli.profile:profile",
+    "predict": "gcode_feedopt.cli.predict:predict",
+    "simulate": "gcode_feedopt.cli.simulate:simulate",
+    "compare": "gcode_feedopt.cli.compare:compare",
+    "identify": "gcode_feedopt.cli.identify:identify",
+    "learn": "gcode_feedopt.cli.learn:learn",
+    "diagnose": "gcode_feedopt.cli.diagnose:diagnose",
+    "batch": "gcode_feedopt.cli.batch:batch",
+}
+DEFAULT_COMMAND = "optimize"
+
+
+class FeedOptGroup(click.Group):
+    """A group whose first argument may be a G-code path instead of a sub-command:
+    anything that is not a known sub-command (or --help/--version) is handed to
+    ``optimize``."""
+
+    def list_commands(self, ctx):
+        return sorted(COMMANDS)
+
+    def get_command(self, ctx, name):
+        target = COMMANDS.get(name)
+        if target is None:
+            return None
+        module_name, attr = target.split(":")
+        try:
+            module = importlib.import_module(module_name)
+        except ModuleNotFoundError as exc:  # a stage not installed in this build
+            if exc.name == module_name:
+                return None
+            raise
+        return getattr(module, attr)
+
+    def parse_args(self, ctx, args):
+        if args and args[0] not in COMMANDS and args[0] not in ("--help", "-h", "--version"):
+            args = [DEFAULT_COMMAND, *args]
+        return super().parse_args(ctx, args)
+
+    def invoke(self, ctx):
+        try:
+            return super().invoke(ctx)
+        except FeedOptError as exc:
+            click.echo(f"gcode-feedopt: error: {exc}", err=True)
+            ctx.exit(exc.exit_code)
+
+
+@click.group(cls=FeedOptGroup, context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, prog_name="gcode-feedopt")
+def cli():
+    """Re-time G-code so the machine finishes faster within a contour-error tolerance.
+
+    \b
+    gcode-feedopt in.gcode -o out.gcode --machine ender3pro
+    gcode-feedopt --machine ender3pro in.gcode          (edits in place; PrusaSlicer)
+    gcode-feedopt COMMAND --help                         (the other commands)
+    """
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Console-script entry point."""
+    cli.main(args=argv if argv is not None else sys.argv[1:], prog_name="gcode-feedopt")
