@@ -1,0 +1,202 @@
+"""Encoder logs: the CSV the virtual machine writes and the closed loop reads.
+
+Format: a header line ``t,x_cmd,y_cmd,x,y`` optionally followed by any of ``z_cmd,z,e_cmd``,
+then one row per sample period Ts; seconds and millimetres, plain decimals (6 places: 1 nm,
+1 µs). ``x_cmd``.. are the commanded positions, ``x``.. the measured ones.
+
+Writing millions of rows with ``np.savetxt`` takes tens of seconds (one Python ``%`` per
+value); ``write_log`` formats a whole block of rows at once with integer arithmetic on a byte
+matrix, and ``read_log`` parses with ``np.fromstring`` after checking the header (see
+``benchmarks/bench_simulate.py`` for both speeds).
+"""
+
+from __future__ import annotations
+
+import difflib
+import os
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import LogError
+from .trajectory import Trajectory
+
+REQUIRED_COLUMNS = ("t", "x_cmd", "y_cmd", "x", "y")
+OPTIONAL_COLUMNS = ("z_cmd", "z", "e_cmd")
+DECIMALS = 6
+#: Rows formatted per block (bounds the byte matrix to ~100 MB for 8 columns).
+_BLOCK_ROWS = 1 << 19
+#: Sample times may deviate from a uniform grid by this fraction of Ts (float round-off of
+#: a printed 6-decimal time), beyond which a log is refused as resampled or truncated.
+TS_JITTER = 1e-3
+
+
+@dataclass(frozen=True)
+class EncoderLog:
+    """An encoder log.
+
+    Attributes:
+        t_s: shape (K,). Sample times, s (uniform, Ts apart).
+        cmd_mm: shape (K, 3). Commanded X, Y, Z, mm (Z = 0 when the log has no z_cmd).
+        pos_mm: shape (K, 3). Measured X, Y, Z, mm (Z = 0 when the log has no z).
+        e_cmd_mm: shape (K,) commanded filament position, mm, or None.
+        columns: the header's column names in order.
+    """
+
+    t_s: np.ndarray
+    cmd_mm: np.ndarray
+    pos_mm: np.ndarray
+    e_cmd_mm: np.ndarray | None
+    columns: tuple[str, ...]
+
+    @property
+    def ts_s(self) -> float:
+        """Sample period, s."""
+        return float((self.t_s[-1] - self.t_s[0]) / (self.t_s.size - 1))
+
+    def trajectory(self) -> Trajectory:
+        """The commanded motion as a Trajectory (E = 0 when the log has no e_cmd)."""
+        e = self.e_cmd_mm if self.e_cmd_mm is not None else np.zeros(self.t_s.size)
+        return Trajectory(ts_s=self.ts_s, pos_mm=self.cmd_mm, e_mm=e)
+
+
+def format_rows(values: np.ndarray, decimals: int = DECIMALS) -> bytes:
+    """Shape (R, C) floats -> CSV bytes, ``decimals`` places, rows ending in ``\\n``.
+
+    Vectorised: each value becomes a fixed-width field of a uint8 matrix (unused leading bytes
+    0), separators are set, and the zero bytes are dropped.
+    """
+    v = np.asarray(values, dtype=float)
+    if not np.all(np.isfinite(v)):
+        raise ValueError("cannot write NaN or infinite values to a log")
+    R, C = v.shape
+    scale = 10 ** decimals
+    n = np.rint(v * scale).astype(np.int64)
+    neg = n < 0
+    a = np.abs(n)
+    ip, fp = np.divmod(a, scale)
+    n_int = len(str(int(ip.max()))) if ip.size else 1
+    width = 1 + n_int + 1 + decimals + 1  # sign, integer digits, dot, fraction, separator
+    buf = np.zeros((R, C, width), dtype=np.uint8)
+    buf[:, :, -1] = ord(",")
+    buf[:, -1, -1] = ord("\n")
+    q = fp
+    for i in range(decimals):
+        q, d = np.divmod(q, 10)
+        buf[:, :, -2 - i] = d + 48
+    buf[:, :, -2 - decimals] = ord(".")
+    q = ip
+    ndig = np.ones(ip.shape, dtype=np.int64)
+    for i in range(n_int):
+        q, d = np.divmod(q, 10)
+        pos = -3 - decimals - i
+        if i == 0:
+            buf[:, :, pos] = d + 48
+        else:
+            present = ip >= 10 ** i
+            buf[:, :, pos] = np.where(present, d + 48, 0)
+            ndig += present
+    if neg.any():
+        r, c = np.nonzero(neg)
+        buf[r, c, width - 3 - decimals - ndig[r, c]] = ord("-")
+    flat = buf.reshape(-1)
+    return flat[flat != 0].tobytes()
+
+
+def write_log(path, t_s: np.ndarray, cmd_mm: np.ndarray, pos_mm: np.ndarray,
+              e_cmd_mm: np.ndarray | None = None, include_z: bool = True) -> None:
+    """Write an encoder log: ``t,x_cmd,y_cmd,x,y`` then ``z_cmd,z`` (if ``include_z``) and
+    ``e_cmd`` (if given). Arrays: t (K,), cmd and pos (K, 3), e (K,)."""
+    t = np.asarray(t_s, dtype=float)
+    cmd = np.asarray(cmd_mm, dtype=float)
+    pos = np.asarray(pos_mm, dtype=float)
+    cols = [t, cmd[:, 0], cmd[:, 1], pos[:, 0], pos[:, 1]]
+    names = list(REQUIRED_COLUMNS)
+    if include_z:
+        cols += [cmd[:, 2], pos[:, 2]]
+        names += ["z_cmd", "z"]
+    if e_cmd_mm is not None:
+        cols.append(np.asarray(e_cmd_mm, dtype=float))
+        names.append("e_cmd")
+    K = t.size
+    if any(c.shape != (K,) for c in cols):
+        raise ValueError("write_log: every column must have as many samples as t")
+    data = np.column_stack(cols)
+    tmp = f"{os.fspath(path)}.part"
+    with open(tmp, "wb") as f:
+        f.write((",".join(names) + "\n").encode())
+        for r0 in range(0, K, _BLOCK_ROWS):
+            f.write(format_rows(data[r0:r0 + _BLOCK_ROWS]))
+    os.replace(tmp, path)
+
+
+def read_log(path) -> EncoderLog:
+    """Read an encoder log. Raises LogError (what, where, the fix) on a malformed file."""
+    name = os.fspath(path)
+    try:
+        with open(name, "rb") as f:
+            raw = f.read()
+    except OSError as exc:
+        raise LogError(f"{name}: cannot read the log ({exc.strerror})") from None
+    head, _, body = raw.partition(b"\n")
+    try:
+        header = head.decode("ascii").strip().lstrip("\ufeff")
+    except UnicodeDecodeError:
+        raise LogError(f"{name}:1: the header is not ASCII text; an encoder log starts with "
+                       f"{','.join(REQUIRED_COLUMNS)}") from None
+    columns = tuple(c.strip() for c in header.split(","))
+    if columns[:5] != REQUIRED_COLUMNS:
+        hint = ""
+        if header.startswith("#time"):
+            hint = " (this looks like a raw Klipper accelerometer file, not an encoder log)"
+        raise LogError(f"{name}:1: header {header[:60]!r} must start with "
+                       f"{','.join(REQUIRED_COLUMNS)}{hint}")
+    for c in columns[5:]:
+        if c not in OPTIONAL_COLUMNS:
+            close = difflib.get_close_matches(c, OPTIONAL_COLUMNS, n=1)
+            did = f" (did you mean {close[0]!r}?)" if close else ""
+            raise LogError(f"{name}:1: unknown column {c!r}{did}; optional columns are "
+                           f"{','.join(OPTIONAL_COLUMNS)}")
+    if len(set(columns)) != len(columns):
+        raise LogError(f"{name}:1: a column appears twice in {header!r}")
+    C = len(columns)
+    text = body.replace(b"\r", b"").strip(b"\n")
+    n_rows = text.count(b"\n") + 1 if text else 0
+    try:
+        flat = np.fromstring(text.replace(b"\n", b",").decode("ascii"), dtype=float, sep=",") if text else np.empty(0)
+    except (ValueError, UnicodeDecodeError):
+        flat = None
+    if flat is None or flat.size != n_rows * C:
+        _raise_bad_row(name, text, C)
+    data = flat.reshape(n_rows, C)
+    if n_rows < 2:
+        raise LogError(f"{name}: {n_rows} data rows; a log needs at least 2 (was it truncated?)")
+    if not np.all(np.isfinite(data)):
+        r = int(np.flatnonzero(~np.all(np.isfinite(data), axis=1))[0])
+        raise LogError(f"{name}:{r + 2}: a value is NaN or infinite")
+    t = data[:, 0]
+    dt = np.diff(t)
+    ts = (t[-1] - t[0]) / (n_rows - 1)
+    if ts <= 0 or np.any(np.abs(dt - ts) > TS_JITTER * ts + 10.0 ** -DECIMALS):
+        bad = int(np.argmax(np.abs(dt - ts))) if ts > 0 else 0
+        raise LogError(f"{name}:{bad + 3}: time step {dt[bad]:.6g} s differs from the log's mean "
+                       f"Ts={ts:.6g} s; a log has one row per Ts, uniformly (gaps or resampling?)")
+    col = {c: data[:, i] for i, c in enumerate(columns)}
+    zeros = np.zeros(n_rows)
+    cmd = np.column_stack([col["x_cmd"], col["y_cmd"], col.get("z_cmd", zeros)])
+    pos = np.column_stack([col["x"], col["y"], col.get("z", zeros)])
+    return EncoderLog(t_s=t, cmd_mm=cmd, pos_mm=pos, e_cmd_mm=col.get("e_cmd"), columns=columns)
+
+
+def _raise_bad_row(name: str, text: bytes, n_cols: int):
+    """Find the first malformed row (slow path, only on error) and raise LogError."""
+    for i, line in enumerate(text.split(b"\n")):
+        parts = line.split(b",")
+        if len(parts) != n_cols:
+            raise LogError(f"{name}:{i + 2}: {len(parts)} values, the header has {n_cols}")
+        try:
+            [float(p) for p in parts]
+        except ValueError:
+            raise LogError(f"{name}:{i + 2}: {line[:60].decode('ascii', 'replace')!r} is not "
+                           "a row of numbers") from None
+    raise LogError(f"{name}: cannot parse the log body")
