@@ -142,3 +142,20 @@ def test_resonance_shift_above_nyquist_refused():
     h = step_invariant_impulse(2 * np.pi * 40, 0.1, 200)
     with pytest.raises(FeedOptError, match="Nyquist"):
         fx.ResonanceShift("x", frequency_hz=300.0).apply(h, TS)
+
+
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+
+@settings(max_examples=60, deadline=None)
+@given(steps=st.lists(st.sampled_from([-1.0, -0.3, 0.0, 0.0, 0.2, 1.0]), min_size=1, max_size=80),
+       width=st.floats(0.0, 2.0))
+def test_play_run_form_equals_sample_recursion(steps, width):
+    """Two implementations of the play operator agree on any walk with stops (to 1e-12)."""
+    x = np.concatenate([[3.0], 3.0 + np.cumsum(steps)])
+    r = width / 2
+    y = [x[0]]
+    for xk in x[1:]:
+        y.append(min(xk + r, max(xk - r, y[-1])))
+    np.testing.assert_allclose(fx.play(x, width), y, atol=1e-12)
