@@ -1,0 +1,187 @@
+"""Generator of the built-in profiles ``ender3pro`` and ``nomad3``.
+
+No measured FRF *sets* (several FRFs with phase) of these exact machines are public, so the
+FRFs are **modelled** from published facts and say so in their provenance:
+
+- Ender 3 / 3 Pro: bed (Y) mode 36–42 Hz in every published Klipper measurement, X 30–95 Hz
+  by toolhead mass, damping ratio 0.07–0.15 (../shared/data/PROVENANCE.md). The measured
+  Ender 3 spectra in ../shared/data/measured/ put the stock X peaks at 40/51 Hz (45/59 Hz after
+  a change) with nearly equal power, and Y at 36 Hz (39 Hz after belt tightening) with a
+  weaker second peak; the modes below follow them.
+- Nomad 3: a stepper / lead-screw desktop mill, stiffer than a belt printer; modes modelled at
+  55–110 Hz, lightly damped (ball/lead-screw drives with linear rails).
+
+Each axis gets N_H = 9 FRFs = 3 excitation amplitudes (2, 3, 4 m/s², as the paper's FRF
+campaign) × 3 repeats. The modes soften with amplitude (frequency −2.5 % and damping +10 % per
+amplitude step, the trend of the paper's Figs. 7–8 and 15–16) and scatter from repeat to
+repeat (frequency ±1 %, damping ±5 %, 1σ; seeded, so the files are reproducible).
+
+Model, commanded → actual position of a base-excited mode (the motor drives the load through
+a belt or screw stiffness k and damping c):  H(s) = Σ g_i (2ζ_i ω_i s + ω_i²)/(s² + 2ζ_i ω_i s
++ ω_i²), Σ g_i = 1, so the DC gain is exactly 1 (a stepper machine reaches the commanded
+position at rest).
+
+Run ``python -m gcode_feedopt.profile.builtin [OUTDIR]`` to regenerate profiles/.
+"""
+
+from __future__ import annotations
+
+import copy
+import pathlib
+import sys
+
+import numpy as np
+
+from .schema import AxisModel, Firmware, FRFSet, Limits, MachineProfile, Mode, TwinSettings
+
+#: Frequency grid of the modelled FRFs: 0 to the Nyquist frequency of Ts = 2 ms in 0.5 Hz
+#: steps, so the impulse response is N_h = 1/(Ts·Δf) = 1000 taps (2 s) long, far beyond the
+#: decay of the slowest mode (ζω ≈ 21 1/s → e^-42 after 2 s).
+DF_HZ = 0.5
+TS_S = 0.002
+AMPLITUDES_MM_S2 = (2000.0, 3000.0, 4000.0)
+REPEATS = 3
+SOFTEN_PER_STEP = 0.025
+DAMP_PER_STEP = 0.10
+SCATTER_FREQ = 0.01
+SCATTER_DAMP = 0.05
+
+
+def modal_frf(freq_hz: np.ndarray, modes) -> np.ndarray:
+    """Σ g (2ζω s + ω²)/(s² + 2ζω s + ω²) at s = j2πf."""
+    s = 2j * np.pi * freq_hz
+    h = np.zeros_like(s)
+    for m in modes:
+        w = 2 * np.pi * m.freq_hz
+        h += m.gain * (2 * m.damping * w * s + w * w) / (s * s + 2 * m.damping * w * s + w * w)
+    return h
+
+
+def frf_campaign(modes, seed: int, ts_s: float = TS_S, df_hz: float = DF_HZ):
+    """9 FRFs (3 amplitudes × 3 repeats) of a modal axis; returns (FRFSet, per-FRF modes)."""
+    rng = np.random.default_rng(seed)
+    freq = np.arange(0.0, 0.5 / ts_s + df_hz / 2, df_hz)
+    resp, labels, used = [], [], []
+    for ka, amp in enumerate(AMPLITUDES_MM_S2):
+        for r in range(REPEATS):
+            ms = []
+            for m in modes:
+                f = m.freq_hz * (1 - SOFTEN_PER_STEP * ka) * (1 + SCATTER_FREQ * rng.standard_normal())
+                z = m.damping * (1 + DAMP_PER_STEP * ka) * (1 + SCATTER_DAMP * rng.standard_normal())
+                ms.append(Mode(freq_hz=float(f), damping=float(z), gain=m.gain))
+            resp.append(modal_frf(freq, ms))
+            labels.append(f"a{amp / 1000:g}ms2_r{r + 1}")
+            used.append(ms)
+    return FRFSet(freq_hz=freq, response=np.vstack(resp), labels=tuple(labels)), used
+
+
+def _axis(modes, seed, source):
+    frf, used = frf_campaign(modes, seed)
+    prov = {
+        "kind": "modelled",
+        "model": "sum of base-excited 2nd-order modes, unit DC gain",
+        "source": source,
+        "campaign": f"{len(AMPLITUDES_MM_S2)} excitation amplitudes {list(AMPLITUDES_MM_S2)} mm/s^2 x "
+                    f"{REPEATS} repeats; softening {SOFTEN_PER_STEP:.1%} freq and +{DAMP_PER_STEP:.0%} "
+                    f"damping per amplitude step; repeat scatter {SCATTER_FREQ:.0%} freq, "
+                    f"{SCATTER_DAMP:.0%} damping (1 sigma), seed {seed}",
+        "measurements": [{"label": lab, "modes": [[round(m.freq_hz, 3), round(m.damping, 4)] for m in ms]}
+                         for lab, ms in zip(frf.labels, used)],
+    }
+    return AxisModel(frf=frf, modes=tuple(modes), provenance=prov)
+
+
+def ender3pro() -> MachineProfile:
+    limits = Limits(vmax_mm_s=70.0, amax_mm_s2=3000.0, jmax_mm_s3=None,
+                    axis_vmax_mm_s={"x": 500.0, "y": 500.0, "z": 5.0, "e": 25.0},
+                    axis_amax_mm_s2={"x": 3000.0, "y": 3000.0, "z": 100.0, "e": 5000.0},
+                    tolerance_mm=0.1, stringency=0.95)
+    firmware = Firmware(
+        flavour="marlin", g91_relative_e=True, accel_mm_s2=3000.0, travel_accel_mm_s2=3000.0,
+        max_accel_mm_s2={"x": 3000.0, "y": 3000.0, "z": 100.0, "e": 5000.0},
+        max_feed_mm_s={"x": 500.0, "y": 500.0, "z": 5.0, "e": 25.0},
+        junction_deviation_mm=0.013, square_corner_velocity_mm_s=5.0, minimum_cruise_ratio=0.5,
+        mm_per_arc_segment=1.0, max_lines_per_s=300.0, retract_mm=3.0, retract_speed_mm_s=45.0)
+    axes = {
+        "x": _axis([Mode(42.0, 0.10, 0.55), Mode(54.0, 0.08, 0.45)], 3101,
+                   "Ender 3 Klipper spectra ../shared/data/measured/ender3_resonances_x_*.csv "
+                   "(peaks 40/51 Hz, later 45/59 Hz, nearly equal power)"),
+        "y": _axis([Mode(37.0, 0.09, 0.80), Mode(51.0, 0.10, 0.20)], 3102,
+                   "Ender 3 Klipper spectra ../shared/data/measured/ender3_resonances_y_*.csv "
+                   "(bed mode 36 Hz, 39 Hz after belt tightening; published 36-42 Hz)"),
+    }
+    twin = TwinSettings(n2=10, n3=30, sigma_eps_mm=0.01, coef_variance="minmax", n_taps=500)
+    return MachineProfile(
+        name="ender3pro",
+        description="Creality Ender 3 Pro (Marlin 2), limits of Kim & Okwudire Sec. 6.1; FRFs modelled",
+        ts_s=TS_S, limits=limits, firmware=firmware, axes=axes, twin=twin,
+        provenance={
+            "limits": "Kim & Okwudire Sec. 6.1: V_max 70 mm/s, A_max 3 m/s^2, E_max 0.1 mm, eta 95 %",
+            "firmware": "Marlin 2 defaults of the Ender-3 Pro configuration for feed (X/Y 500, Z 5, "
+                        "E 25 mm/s) and firmware retraction (3 mm at 45 mm/s); the stock firmware "
+                        "limits X/Y acceleration to 500 mm/s^2: this profile assumes M201/M204 raised "
+                        "to 3000 mm/s^2 (the paper's A_max) so the firmware can follow the plan. "
+                        "Junction deviation 0.013 mm (Marlin 2 default). max_lines_per_s 300: "
+                        "115200-baud serial carries ~11.5 kB/s, ~35 bytes per G1 line.",
+            "frf": "modelled (no measured FRF set of this machine is public); see axes.*.provenance",
+            "twin": "n2 10, n3 30, sigma_eps 0.01 mm as in Kim & Okwudire Sec. 6.1",
+            "generator": "python -m gcode_feedopt.profile.builtin",
+        })
+
+
+def nomad3() -> MachineProfile:
+    limits = Limits(vmax_mm_s=30.0, amax_mm_s2=5000.0, jmax_mm_s3=None,
+                    axis_vmax_mm_s={"x": 100.0, "y": 100.0, "z": 20.0, "e": 25.0},
+                    axis_amax_mm_s2={"x": 5000.0, "y": 5000.0, "z": 1000.0, "e": 5000.0},
+                    tolerance_mm=0.4, stringency=0.95)
+    firmware = Firmware(
+        flavour="marlin", g91_relative_e=True, accel_mm_s2=5000.0, travel_accel_mm_s2=5000.0,
+        max_accel_mm_s2={"x": 5000.0, "y": 5000.0, "z": 1000.0, "e": 5000.0},
+        max_feed_mm_s={"x": 100.0, "y": 100.0, "z": 20.0, "e": 25.0},
+        junction_deviation_mm=0.01, square_corner_velocity_mm_s=5.0, minimum_cruise_ratio=0.5,
+        mm_per_arc_segment=0.5, max_lines_per_s=500.0, retract_mm=0.0, retract_speed_mm_s=30.0)
+    axes = {
+        "x": _axis([Mode(68.0, 0.06, 1.0)], 3201,
+                   "modelled: stepper + lead-screw gantry of a desktop mill, single dominant mode"),
+        "y": _axis([Mode(55.0, 0.05, 0.85), Mode(110.0, 0.04, 0.15)], 3202,
+                   "modelled: stepper + lead-screw table of a desktop mill, table mode + screw mode"),
+    }
+    twin = TwinSettings(n2=3, n3=10, sigma_eps_mm=0.01, coef_variance="minmax", n_taps=500)
+    return MachineProfile(
+        name="nomad3",
+        description="Carbide 3D Nomad 3 desktop mill, limits of Kim & Okwudire Sec. 5; FRFs modelled",
+        ts_s=TS_S, limits=limits, firmware=firmware, axes=axes, twin=twin,
+        provenance={
+            "limits": "Kim & Okwudire Sec. 5: V_max 30 mm/s, A_max 5 m/s^2, E_max 0.4 mm, eta 95 %",
+            "firmware": "planned as a trapezoidal, junction-deviation firmware (the 'marlin' model); "
+                        "the real Nomad 3 runs Grbl, which plans the same way",
+            "frf": "modelled (no measured FRF set of this machine is public); see axes.*.provenance",
+            "twin": "n2 3, n3 10, sigma_eps 0.01 mm as in Kim & Okwudire Sec. 5",
+            "generator": "python -m gcode_feedopt.profile.builtin",
+        })
+
+
+BUILTINS = {"ender3pro": ender3pro, "nomad3": nomad3}
+
+
+def write_builtins(outdir) -> list[pathlib.Path]:
+    from .io import save_profile
+
+    outdir = pathlib.Path(outdir)
+    written = []
+    for name, make in BUILTINS.items():
+        prof = make()
+        try:  # the learned prior (Appendix A), when the twin can compute it
+            from ..twin.prior import prior_for_profile
+        except ImportError:
+            prior_for_profile = None
+        if prior_for_profile is not None:
+            prof = prior_for_profile(prof)
+        written.append(save_profile(prof, outdir / f"{name}.yaml"))
+    return written
+
+
+if __name__ == "__main__":
+    out = sys.argv[1] if len(sys.argv) > 1 else pathlib.Path(__file__).resolve().parents[2] / "profiles"
+    for p in write_builtins(out):
+        print(p)

@@ -1,0 +1,386 @@
+"""Profile files: YAML + FRF CSVs beside it. The only module that imports yaml.
+
+Every value goes through one bounded getter (:class:`_Section`), so every error names the
+file, the key path, the value, the limit and the fix; unknown keys are refused with a
+"did you mean".
+"""
+
+from __future__ import annotations
+
+import difflib
+import importlib.resources
+import math
+import pathlib
+
+import numpy as np
+import yaml
+
+from ..errors import ProfileError
+from .schema import AXES, AxisModel, Firmware, FRFSet, Limits, MachineProfile, Mode, Prior, TwinSettings
+
+SCHEMA_VERSION = 1
+BUILTIN_PACKAGE = "gcode_feedopt.profiles"
+FRF_HEADER = "freq_hz,real,imag"
+
+
+class _Section:
+    """A mapping read from YAML, with bounded getters and unknown-key checks."""
+
+    def __init__(self, data, where: str, origin: str):
+        if data is None:
+            data = {}
+        if not isinstance(data, dict):
+            raise ProfileError(f"{origin}: {where or 'top level'} must be a mapping, got "
+                               f"{type(data).__name__}")
+        self.data = data
+        self.where = where
+        self.origin = origin
+        self.used: set[str] = set()
+
+    def _key(self, key):
+        return f"{self.where}.{key}" if self.where else key
+
+    def _err(self, key, msg):
+        return ProfileError(f"{self.origin}: {self._key(key)}: {msg}")
+
+    def has(self, key) -> bool:
+        return key in self.data
+
+    def raw(self, key, default=...):
+        self.used.add(key)
+        if key not in self.data:
+            if default is ...:
+                raise self._err(key, "missing; add it (see README, 'Machine profiles')")
+            return default
+        return self.data[key]
+
+    def getfloat(self, key, default=..., *, minval=None, maxval=None, above=None, below=None,
+                 allow_none=False):
+        v = self.raw(key, default)
+        if v is None and allow_none:
+            return None
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            raise self._err(key, f"{v!r} is not a number")
+        v = float(v)
+        if not math.isfinite(v):
+            raise self._err(key, f"{v} is not finite")
+        if minval is not None and v < minval:
+            raise self._err(key, f"{v:g} is below the minimum {minval:g}")
+        if maxval is not None and v > maxval:
+            raise self._err(key, f"{v:g} is above the maximum {maxval:g}")
+        if above is not None and v <= above:
+            raise self._err(key, f"{v:g} must be above {above:g}")
+        if below is not None and v >= below:
+            raise self._err(key, f"{v:g} must be below {below:g}")
+        return v
+
+    def getint(self, key, default=..., *, minval=None, maxval=None):
+        v = self.raw(key, default)
+        if isinstance(v, bool) or not isinstance(v, int):
+            raise self._err(key, f"{v!r} is not an integer")
+        if minval is not None and v < minval:
+            raise self._err(key, f"{v} is below the minimum {minval}")
+        if maxval is not None and v > maxval:
+            raise self._err(key, f"{v} is above the maximum {maxval}")
+        return v
+
+    def getbool(self, key, default=...):
+        v = self.raw(key, default)
+        if not isinstance(v, bool):
+            raise self._err(key, f"{v!r} is not true/false")
+        return v
+
+    def getchoice(self, key, choices, default=...):
+        v = self.raw(key, default)
+        if v not in choices:
+            raise self._err(key, f"{v!r} is not one of {', '.join(map(str, choices))}")
+        return v
+
+    def getstr(self, key, default=...):
+        v = self.raw(key, default)
+        if not isinstance(v, str):
+            raise self._err(key, f"{v!r} is not text")
+        return v
+
+    def section(self, key, default=...):
+        return _Section(self.raw(key, default), self._key(key), self.origin)
+
+    def check_unknown(self):
+        for k in self.data:
+            if k not in self.used:
+                close = difflib.get_close_matches(str(k), sorted(self.used), n=1)
+                hint = f"; did you mean '{close[0]}'?" if close else \
+                    f"; known keys: {', '.join(sorted(self.used))}"
+                raise ProfileError(f"{self.origin}: unknown key '{self._key(k)}'{hint}")
+
+
+def _axis_dict(sec: _Section, key: str, axes=("x", "y", "z", "e"), **bounds) -> dict:
+    s = sec.section(key)
+    out = {a: s.getfloat(a, **bounds) for a in axes}
+    s.check_unknown()
+    return out
+
+
+def read_frf_csv(path: pathlib.Path) -> tuple[np.ndarray, np.ndarray]:
+    """Read one FRF file: header ``freq_hz,real,imag``. Returns (freq_hz (K,), H (K,) complex)."""
+    try:
+        text = path.read_text()
+    except FileNotFoundError:
+        raise ProfileError(f"{path}: FRF file not found; check the path in the profile "
+                           "(paths are relative to the YAML file)") from None
+    lines = text.splitlines()
+    if not lines or lines[0].strip().replace(" ", "") != FRF_HEADER:
+        raise ProfileError(f"{path}:1: FRF file must start with the header '{FRF_HEADER}', got "
+                           f"{lines[0][:40]!r}" if lines else f"{path}: FRF file is empty")
+    try:
+        arr = np.loadtxt(lines[1:], delimiter=",", ndmin=2)
+    except ValueError as exc:
+        raise ProfileError(f"{path}: FRF rows must be three numbers each ({exc})") from None
+    if arr.shape[1] != 3 or arr.shape[0] < 4:
+        raise ProfileError(f"{path}: FRF needs at least 4 rows of freq_hz,real,imag; got "
+                           f"{arr.shape[0]} rows of {arr.shape[1]} columns")
+    f = arr[:, 0]
+    if not np.all(np.isfinite(arr)):
+        raise ProfileError(f"{path}: FRF contains non-finite values")
+    if np.any(np.diff(f) <= 0) or f[0] < 0:
+        raise ProfileError(f"{path}: freq_hz must be non-negative and strictly increasing")
+    return f, arr[:, 1] + 1j * arr[:, 2]
+
+
+def write_frf_csv(path: pathlib.Path, freq_hz: np.ndarray, response: np.ndarray) -> None:
+    """Write one FRF file, 12 significant digits (a round trip is exact to 1e-12 relative)."""
+    rows = np.column_stack([freq_hz, response.real, response.imag])
+    with open(path, "w", newline="\n") as fh:
+        fh.write(FRF_HEADER + "\n")
+        for r in rows:
+            fh.write(f"{float(r[0]):.12g},{float(r[1]):.12g},{float(r[2]):.12g}\n")
+
+
+def frf_set_from_files(paths, origin: str = "") -> FRFSet:
+    """Stack FRF files measured on one grid into an FRFSet."""
+    freqs, resp, labels = None, [], []
+    for p in paths:
+        p = pathlib.Path(p)
+        f, h = read_frf_csv(p)
+        if freqs is None:
+            freqs = f
+        elif f.shape != freqs.shape or np.max(np.abs(f - freqs)) > 1e-9 * max(1.0, freqs[-1]):
+            raise ProfileError(f"{p}: frequency grid differs from {labels[0]}; all FRFs of an "
+                               "axis must share one grid (resample them first)")
+        resp.append(h)
+        labels.append(p.name)
+    if freqs is None:
+        raise ProfileError(f"{origin}: no FRF files given")
+    return FRFSet(freq_hz=freqs, response=np.vstack(resp), labels=tuple(labels))
+
+
+def _read_axis(sec: _Section, base_dir: pathlib.Path | None) -> AxisModel:
+    frf = None
+    if sec.has("frf"):
+        items = sec.raw("frf")
+        if not isinstance(items, list) or not items:
+            raise ProfileError(f"{sec.origin}: {sec._key('frf')}: must be a list of FRF file paths")
+        paths = []
+        for it in items:
+            if not isinstance(it, str):
+                raise ProfileError(f"{sec.origin}: {sec._key('frf')}: {it!r} is not a file path")
+            p = pathlib.Path(it)
+            if not p.is_absolute():
+                if base_dir is None:
+                    raise ProfileError(f"{sec.origin}: relative FRF path {it} without a base folder")
+                p = base_dir / p
+            paths.append(p)
+        frf = frf_set_from_files(paths, sec.origin)
+    modes = []
+    for k, m in enumerate(sec.raw("modes", [])):
+        ms = _Section(m, f"{sec._key('modes')}[{k}]", sec.origin)
+        modes.append(Mode(freq_hz=ms.getfloat("freq_hz", above=0, maxval=1e4),
+                          damping=ms.getfloat("damping", above=0, below=1),
+                          gain=ms.getfloat("gain", 1.0)))
+        ms.check_unknown()
+    prov = sec.raw("provenance", {})
+    sec.check_unknown()
+    return AxisModel(frf=frf, modes=tuple(modes), provenance=prov)
+
+
+def _read_prior(sec: _Section, n: int) -> Prior:
+    mu = np.asarray(sec.raw("mu"), dtype=float)
+    cov = np.asarray(sec.raw("cov"), dtype=float)
+    if mu.shape != (n,) or cov.shape != (n, n):
+        raise ProfileError(f"{sec.origin}: {sec.where}: prior must have mu of length {n} and cov "
+                           f"{n}x{n} (1 + n2 + 1 + n3); got {mu.shape} and {cov.shape}")
+    if not np.allclose(cov, cov.T, atol=1e-12 * max(1.0, np.abs(cov).max())):
+        raise ProfileError(f"{sec.origin}: {sec.where}.cov is not symmetric")
+    learned = tuple(sec.raw("learned_from", []))
+    sec.check_unknown()
+    return Prior(mu=mu, cov=cov, learned_from=learned)
+
+
+def parse_profile(data, origin: str, base_dir: pathlib.Path | None) -> MachineProfile:
+    """Build a MachineProfile from the YAML mapping ``data``."""
+    top = _Section(data, "", origin)
+    version = top.getint("schema", SCHEMA_VERSION)
+    if version != SCHEMA_VERSION:
+        raise ProfileError(f"{origin}: schema {version} is not supported (this version reads "
+                           f"schema {SCHEMA_VERSION})")
+    name = top.getstr("name")
+    description = top.getstr("description", "")
+    ts_s = top.getfloat("ts_s", 0.002, above=0, maxval=0.1)
+    ls = top.section("limits")
+    limits = Limits(
+        vmax_mm_s=ls.getfloat("vmax_mm_s", above=0, maxval=5000),
+        amax_mm_s2=ls.getfloat("amax_mm_s2", above=0, maxval=1e6),
+        jmax_mm_s3=ls.getfloat("jmax_mm_s3", None, above=0, allow_none=True),
+        axis_vmax_mm_s=_axis_dict(ls, "axis_vmax_mm_s", above=0, maxval=5000),
+        axis_amax_mm_s2=_axis_dict(ls, "axis_amax_mm_s2", above=0, maxval=1e6),
+        tolerance_mm=ls.getfloat("tolerance_mm", above=0, maxval=10),
+        stringency=ls.getfloat("stringency", minval=0.5, maxval=0.9999),
+    )
+    ls.check_unknown()
+    fs = top.section("firmware")
+    flavour = fs.getchoice("flavour", ("marlin", "klipper"))
+    firmware = Firmware(
+        flavour=flavour,
+        g91_relative_e=fs.getbool("g91_relative_e", flavour == "marlin"),
+        accel_mm_s2=fs.getfloat("accel_mm_s2", above=0, maxval=1e6),
+        travel_accel_mm_s2=fs.getfloat("travel_accel_mm_s2", above=0, maxval=1e6),
+        max_accel_mm_s2=_axis_dict(fs, "max_accel_mm_s2", above=0, maxval=1e6),
+        max_feed_mm_s=_axis_dict(fs, "max_feed_mm_s", above=0, maxval=5000),
+        junction_deviation_mm=fs.getfloat("junction_deviation_mm", 0.013, minval=0, maxval=5),
+        square_corner_velocity_mm_s=fs.getfloat("square_corner_velocity_mm_s", 5.0, minval=0,
+                                                maxval=1000),
+        minimum_cruise_ratio=fs.getfloat("minimum_cruise_ratio", 0.5, minval=0, below=1),
+        mm_per_arc_segment=fs.getfloat("mm_per_arc_segment", 1.0, above=0, maxval=100),
+        max_lines_per_s=fs.getfloat("max_lines_per_s", above=1, maxval=1e6),
+        retract_mm=fs.getfloat("retract_mm", 0.0, minval=0, maxval=50),
+        retract_speed_mm_s=fs.getfloat("retract_speed_mm_s", 30.0, above=0, maxval=1000),
+    )
+    fs.check_unknown()
+    axs = top.section("axes")
+    axes = {}
+    for a in AXES:
+        axes[a] = _read_axis(axs.section(a), base_dir)
+    axs.check_unknown()
+    tw = top.section("twin")
+    n2 = tw.getint("n2", minval=0, maxval=200)
+    n3 = tw.getint("n3", minval=0, maxval=500)
+    priors = {}
+    if tw.has("priors"):
+        ps = tw.section("priors")
+        for a in AXES:
+            if ps.has(a):
+                priors[a] = _read_prior(ps.section(a), 1 + (n2 + 1) + n3)
+        ps.check_unknown()
+    twin = TwinSettings(
+        n2=n2, n3=n3,
+        sigma_eps_mm=tw.getfloat("sigma_eps_mm", above=0, maxval=10),
+        coef_variance=tw.getchoice("coef_variance", ("minmax", "sample"), "minmax"),
+        n_taps=tw.getint("n_taps", 500, minval=8, maxval=100000),
+        priors=priors,
+    )
+    tw.check_unknown()
+    provenance = top.raw("provenance", {})
+    top.check_unknown()
+    return MachineProfile(name=name, description=description, ts_s=ts_s, limits=limits,
+                          firmware=firmware, axes=axes, twin=twin, provenance=provenance,
+                          source_path=origin)
+
+
+def builtin_names() -> list[str]:
+    root = importlib.resources.files(BUILTIN_PACKAGE)
+    return sorted(p.name[:-5] for p in root.iterdir() if p.name.endswith(".yaml"))
+
+
+def _builtin_dir() -> pathlib.Path:
+    root = importlib.resources.files(BUILTIN_PACKAGE)
+    return pathlib.Path(str(root))
+
+
+def load_profile(name_or_path) -> MachineProfile:
+    """Load a built-in profile by name (``ender3pro``, ``nomad3``) or a YAML file by path."""
+    text = str(name_or_path)
+    p = pathlib.Path(text)
+    if not (text.endswith((".yaml", ".yml")) or p.exists() or "/" in text or "\\" in text):
+        names = builtin_names()
+        if text not in names:
+            close = difflib.get_close_matches(text, names, n=1)
+            hint = f"did you mean '{close[0]}'? " if close else ""
+            raise ProfileError(f"unknown machine '{text}'; {hint}built-in profiles: "
+                               f"{', '.join(names)} (or pass a profile .yaml path)")
+        p = _builtin_dir() / f"{text}.yaml"
+    if not p.is_file():
+        raise ProfileError(f"{p}: profile file not found; check the path or use a built-in "
+                           f"name ({', '.join(builtin_names())})")
+    try:
+        data = yaml.safe_load(p.read_text())
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f":{mark.line + 1}" if mark else ""
+        raise ProfileError(f"{p}{where}: not valid YAML ({getattr(exc, 'problem', exc)}); fix "
+                           "the syntax") from None
+    return parse_profile(data, str(p), p.parent)
+
+
+def _prior_to_yaml(pr: Prior) -> dict:
+    return {"mu": [float(v) for v in pr.mu], "cov": [[float(v) for v in row] for row in pr.cov],
+            "learned_from": list(pr.learned_from)}
+
+
+def profile_to_dict(profile: MachineProfile, frf_paths: dict | None = None) -> dict:
+    """The YAML mapping of a profile; ``frf_paths`` maps axis -> list of relative CSV paths."""
+    L, F, T = profile.limits, profile.firmware, profile.twin
+    d = {
+        "schema": SCHEMA_VERSION, "name": profile.name, "description": profile.description,
+        "ts_s": profile.ts_s,
+        "limits": {"vmax_mm_s": L.vmax_mm_s, "amax_mm_s2": L.amax_mm_s2,
+                   "jmax_mm_s3": L.jmax_mm_s3, "axis_vmax_mm_s": dict(L.axis_vmax_mm_s),
+                   "axis_amax_mm_s2": dict(L.axis_amax_mm_s2), "tolerance_mm": L.tolerance_mm,
+                   "stringency": L.stringency},
+        "firmware": {"flavour": F.flavour, "g91_relative_e": F.g91_relative_e,
+                     "accel_mm_s2": F.accel_mm_s2, "travel_accel_mm_s2": F.travel_accel_mm_s2,
+                     "max_accel_mm_s2": dict(F.max_accel_mm_s2),
+                     "max_feed_mm_s": dict(F.max_feed_mm_s),
+                     "junction_deviation_mm": F.junction_deviation_mm,
+                     "square_corner_velocity_mm_s": F.square_corner_velocity_mm_s,
+                     "minimum_cruise_ratio": F.minimum_cruise_ratio,
+                     "mm_per_arc_segment": F.mm_per_arc_segment,
+                     "max_lines_per_s": F.max_lines_per_s, "retract_mm": F.retract_mm,
+                     "retract_speed_mm_s": F.retract_speed_mm_s},
+        "axes": {},
+        "twin": {"n2": T.n2, "n3": T.n3, "sigma_eps_mm": T.sigma_eps_mm,
+                 "coef_variance": T.coef_variance, "n_taps": T.n_taps},
+        "provenance": profile.provenance,
+    }
+    if T.priors:
+        d["twin"]["priors"] = {a: _prior_to_yaml(p) for a, p in T.priors.items()}
+    for a, ax in profile.axes.items():
+        ad = {}
+        if ax.frf is not None and frf_paths and a in frf_paths:
+            ad["frf"] = list(frf_paths[a])
+        if ax.modes:
+            ad["modes"] = [{"freq_hz": m.freq_hz, "damping": m.damping, "gain": m.gain}
+                           for m in ax.modes]
+        if ax.provenance:
+            ad["provenance"] = ax.provenance
+        d["axes"][a] = ad
+    return d
+
+
+def save_profile(profile: MachineProfile, path) -> pathlib.Path:
+    """Write ``path`` (YAML) and the FRF CSVs in a folder named after it, beside it."""
+    path = pathlib.Path(path)
+    folder = path.parent / path.stem
+    frf_paths = {}
+    for a, ax in profile.axes.items():
+        if ax.frf is None:
+            continue
+        folder.mkdir(parents=True, exist_ok=True)
+        rel = []
+        for k in range(ax.frf.n_measurements):
+            fname = f"{a}_{k + 1:02d}.csv"
+            write_frf_csv(folder / fname, ax.frf.freq_hz, ax.frf.response[k])
+            rel.append(f"{folder.name}/{fname}")
+        frf_paths[a] = rel
+    d = profile_to_dict(profile, frf_paths)
+    path.write_text(yaml.safe_dump(d, sort_keys=False, width=100))
+    return path

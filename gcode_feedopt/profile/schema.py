@@ -1,0 +1,151 @@
+"""Machine profile: frozen, typed, unit-bearing dataclasses. No file I/O here (see io.py).
+
+One schema for every profile. Keys carry their unit in their name; every number is checked
+against bounds where it is read (see io.py), with messages that name the file, the key, the
+value, the limit and the fix.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+AXES = ("x", "y")
+
+
+@dataclass(frozen=True)
+class Limits:
+    """Kinematic limits the planners respect.
+
+    Attributes:
+        vmax_mm_s: path feed cap (paper's V_max).
+        amax_mm_s2: per-axis acceleration limit of X and Y used by the planners (paper's A_max).
+        jmax_mm_s3: per-axis jerk limit, None for none.
+        axis_vmax_mm_s, axis_amax_mm_s2: per axis ``x``, ``y``, ``z``, ``e``.
+        tolerance_mm: default contour-error tolerance E_max.
+        stringency: default stringency η (0.5–0.9999).
+    """
+
+    vmax_mm_s: float
+    amax_mm_s2: float
+    jmax_mm_s3: float | None
+    axis_vmax_mm_s: dict
+    axis_amax_mm_s2: dict
+    tolerance_mm: float
+    stringency: float
+
+
+@dataclass(frozen=True)
+class Firmware:
+    """What the machine's firmware does with the G-code we write.
+
+    Attributes:
+        flavour: ``marlin`` or ``klipper``.
+        g91_relative_e: Marlin semantics: G90/G91 also switch E until the next M82/M83.
+        accel_mm_s2, travel_accel_mm_s2: default print and travel acceleration (M204 P/T).
+        max_accel_mm_s2, max_feed_mm_s: per-axis maxima (M201, M203), keys x y z e.
+        junction_deviation_mm: Marlin's junction deviation.
+        square_corner_velocity_mm_s: Klipper's square corner velocity.
+        minimum_cruise_ratio: Klipper's minimum_cruise_ratio (1 − max_accel_to_decel/accel).
+        mm_per_arc_segment: the firmware's arc segment length (G2/G3 are split into lines).
+        max_lines_per_s: how many motion lines per second the firmware can take (planner
+            buffer / serial bandwidth); the writer never emits more.
+        retract_mm, retract_speed_mm_s: firmware retraction (G10/G11).
+    """
+
+    flavour: str
+    g91_relative_e: bool
+    accel_mm_s2: float
+    travel_accel_mm_s2: float
+    max_accel_mm_s2: dict
+    max_feed_mm_s: dict
+    junction_deviation_mm: float
+    square_corner_velocity_mm_s: float
+    minimum_cruise_ratio: float
+    mm_per_arc_segment: float
+    max_lines_per_s: float
+    retract_mm: float
+    retract_speed_mm_s: float
+
+
+@dataclass(frozen=True)
+class FRFSet:
+    """N_H measured frequency responses of one axis, commanded → actual position.
+
+    Attributes:
+        freq_hz: (K,) frequency grid, Hz, ascending, starting at 0 (DC).
+        response: (N_H, K) complex, dimensionless.
+        labels: N_H names (file names or measurement ids).
+    """
+
+    freq_hz: np.ndarray
+    response: np.ndarray
+    labels: tuple = ()
+
+    @property
+    def n_measurements(self) -> int:
+        return int(self.response.shape[0])
+
+
+@dataclass(frozen=True)
+class Mode:
+    """One structural mode: natural frequency, damping ratio, modal gain."""
+
+    freq_hz: float
+    damping: float
+    gain: float = 1.0
+
+
+@dataclass(frozen=True)
+class Prior:
+    """Learned prior of the twin's regression weights for one axis.
+
+    Attributes:
+        mu: (n,) mean. cov: (n, n) covariance.
+        learned_from: list of records (what data, when, how).
+    """
+
+    mu: np.ndarray
+    cov: np.ndarray
+    learned_from: tuple = ()
+
+
+@dataclass(frozen=True)
+class AxisModel:
+    frf: FRFSet | None
+    modes: tuple = ()
+    provenance: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class TwinSettings:
+    """Settings of the digital twin (paper Sec. 3).
+
+    Attributes:
+        n2, n3: feature orders (past x̂ samples, past prediction errors).
+        sigma_eps_mm: σ_ε, the unobserved noise.
+        coef_variance: ``minmax`` (paper Eq. 9, 3σ = half the min–max range) or ``sample``.
+        n_taps: impulse-response length used by the twin.
+        priors: axis -> Prior (absent when not learned yet).
+    """
+
+    n2: int
+    n3: int
+    sigma_eps_mm: float
+    coef_variance: str
+    n_taps: int
+    priors: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class MachineProfile:
+    name: str
+    description: str
+    ts_s: float
+    limits: Limits
+    firmware: Firmware
+    axes: dict
+    twin: TwinSettings
+    provenance: dict
+    source_path: str | None = None
