@@ -1,0 +1,56 @@
+"""``gcode-feedopt [optimize] IN [-o OUT] --machine M ...`` — the main job."""
+
+from __future__ import annotations
+
+import pathlib
+import sys
+
+import click
+
+from ..errors import FeedOptError
+from ..pipeline import METHODS, Options, optimize_file
+from ..profile import load_profile
+
+
+@click.command("optimize")
+@click.argument("gcode", type=click.Path(dir_okay=False, path_type=pathlib.Path))
+@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=pathlib.Path),
+              help="Write here; without it the input is edited in place (PrusaSlicer's contract).")
+@click.option("--machine", "-m", required=True,
+              help="Built-in profile (ender3pro, nomad3) or a profile .yaml path.")
+@click.option("--method", type=click.Choice(METHODS), default="kinematic", show_default=True,
+              help="Planner: kinematic limits only, or a twin-driven method.")
+@click.option("--tolerance", type=click.FloatRange(min=0, min_open=True), metavar="MM",
+              help="Contour-error tolerance E_max, mm (default: the profile's).")
+@click.option("--stringency", type=click.FloatRange(0.5, 0.9999), metavar="P",
+              help="Fraction of samples that must be within tolerance (default: the profile's).")
+@click.option("--vmax", type=click.FloatRange(min=0, min_open=True), metavar="MM_S",
+              help="Override the profile's feed limit, mm/s.")
+@click.option("--amax", type=click.FloatRange(min=0, min_open=True), metavar="MM_S2",
+              help="Override the profile's X/Y acceleration limit, mm/s².")
+@click.option("--mode", type=click.Choice(["refeed", "sampled"]), default="refeed", show_default=True,
+              help="refeed: the original moves with new F values; sampled: one G1 per Ts.")
+@click.option("--use-slicer-feed", is_flag=True,
+              help="Never go faster than the slicer's F (keeps its cooling slow-downs).")
+@click.option("--trajectory", type=click.Path(dir_okay=False), metavar="CSV",
+              help="Also write the planned trajectory t,x,y,z,e (s, mm), one row per Ts.")
+@click.option("--report", "report_path", type=click.Path(dir_okay=False), metavar="JSON",
+              help="Write the run's figures as JSON.")
+@click.option("--dry-run", is_flag=True, help="Plan and report, write nothing.")
+@click.option("--force", is_flag=True, help="Process a file that was processed before.")
+@click.option("--quiet", "-q", is_flag=True, help="No summary on stderr.")
+def optimize(gcode, output, machine, method, tolerance, stringency, vmax, amax, mode,
+             use_slicer_feed, trajectory, report_path, dry_run, force, quiet):
+    """Re-time GCODE for MACHINE and write it (in place without -o)."""
+    profile = load_profile(machine)
+    opts = Options(method=method, tolerance_mm=tolerance, stringency=stringency, vmax_mm_s=vmax,
+                   amax_mm_s2=amax, mode=mode, use_slicer_feed=use_slicer_feed, force=force,
+                   dry_run=dry_run, trajectory=trajectory)
+    if not gcode.is_file():
+        raise FeedOptError(f"{gcode}: no such file; check the path")
+    rep = optimize_file(gcode, output, profile, opts)
+    if report_path:
+        pathlib.Path(report_path).write_text(rep.to_json())
+    if not quiet:
+        click.echo(rep.summary(), err=True)
+    sys.stderr.flush()

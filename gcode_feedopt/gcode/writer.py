@@ -1,0 +1,399 @@
+"""Writers: a Schedule back into G-code.
+
+*re-feedrated* (default): each original move is split into as few sub-moves as needed for
+the F values to follow the planned speed within ``SPEED_TOL`` (relative, with a floor of
+``SPEED_TOL_ABS_MM_S``); each sub-move's F is its average planned speed, so the time of every
+piece — and of the file — is the plan's. E is split exactly in proportion to length (absolute
+and relative E), each original move still ends at its original coordinates (the last piece
+reuses the original number texts, or for relative moves the exact decimal remainder), arcs are
+split into sub-arcs (G2/G3 with I/J recomputed), the modal F is restored before any untouched
+motion line that relies on it, and no piece is shorter than 1/max_lines_per_s.
+
+*sampled* (``mode="sampled"``): one G1 per Ts of the plan; a header comment states Ts.
+
+Every other line passes through byte for byte. The writer returns, with the bytes, a tag for
+each output line so :mod:`verify` can check the invariants independently.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from decimal import Decimal
+
+import numpy as np
+
+from .. import __version__
+from ..plan.schedule import Schedule
+from .metadata import MetadataUpdater
+from .path import SEG_LINE, Path
+from .reader import IDENT_PREFIX, Program
+
+#: Relative speed band a sub-move may span (the F written is its average speed).
+SPEED_TOL = 0.05
+#: ... but never finer than this, mm/s.
+SPEED_TOL_ABS_MM_S = 1.0
+#: Decimals written for XYZ of intermediate points (0.1 µm) and at least for E.
+XYZ_DECIMALS = 4
+E_DECIMALS = 5
+
+# Tags of output lines.
+T_ORIG, T_META, T_NEW, T_RESTORE, T_IDENT = 0, 1, 2, 3, 4
+
+
+@dataclass
+class WriteResult:
+    data: bytes
+    #: per output line: (tag, index) — input line index for T_ORIG/T_META, move index for T_NEW
+    tags: list
+    lines_written: int
+    moves_changed: int
+    sub_moves: int
+
+
+def _ending(line: bytes) -> bytes:
+    if line.endswith(b"\r\n"):
+        return b"\r\n"
+    if line.endswith(b"\n"):
+        return b"\n"
+    return b""
+
+
+def _decimals(text: str) -> int:
+    text = text.lower().split("e")[0] if "e" in text.lower() and not text[0].isalpha() else text
+    return len(text.split(".", 1)[1]) if "." in text else 0
+
+
+def _fmt(v: float, nd: int) -> str:
+    s = f"{v:.{nd}f}"
+    if "." in s:
+        s = s.rstrip("0").rstrip(".")
+    if s in ("-0", ""):
+        s = "0"
+    return s
+
+
+def _dec(d: Decimal) -> str:
+    """A Decimal as plain text without exponent or trailing zeros."""
+    t = format(d, "f")
+    if "." in t:
+        t = t.rstrip("0").rstrip(".")
+    return "0" if t in ("-0", "") else t
+
+
+def _fmt_feed(v_mm_s: float) -> str:
+    return _fmt(v_mm_s * 60.0, 1)
+
+
+def segment_times(schedule: Schedule, path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """(N,) time the motion of each segment starts and ends, s (from the sampled s(t))."""
+    s = schedule.s_mm
+    ts = schedule.ts_s
+    t = np.arange(s.size) * ts
+    lo = path.s0_mm[:-1]
+    hi = path.s0_mm[1:]
+    # start: last sample with s <= lo, then interpolate to the exact crossing
+    t_start = _crossing(s, t, lo, leave=True)
+    t_end = _crossing(s, t, hi, leave=False)
+    return t_start, t_end
+
+
+def _crossing(s, t, level, leave: bool):
+    """Time s(t) leaves ``level`` (leave=True: last instant at level) or first reaches it."""
+    if leave:
+        j = np.searchsorted(s, level, side="right") - 1
+    else:
+        j = np.searchsorted(s, level, side="left") - 1
+    j = np.clip(j, 0, s.size - 2)
+    s0 = s[j]
+    s1 = s[j + 1]
+    ds = s1 - s0
+    frac = np.where(ds > 0, (level - s0) / np.where(ds > 0, ds, 1.0), 1.0 if not leave else 0.0)
+    return t[j] + np.clip(frac, 0.0, 1.0) * (t[j + 1] - t[j])
+
+
+def _firmware_band(v_plan: np.ndarray, s_mid: np.ndarray, t_mid: np.ndarray, L: float,
+                   ta: float, tb: float, accel: float) -> float | None:
+    """If the firmware, given one move with F = the plan's peak speed, would reproduce the
+    planned speed (its own trapezoid: accelerate at ``accel`` from the entry speed, cruise at
+    F, brake at ``accel`` to the exit speed) within the speed tolerance, return that F."""
+    if accel <= 0 or not np.isfinite(accel):
+        return None
+    vpk = float(v_plan.max())
+    v0 = max(float(v_plan[0]) - accel * (t_mid[0] - ta), 0.0)
+    v1 = max(float(v_plan[-1]) - accel * (tb - t_mid[-1]), 0.0)
+    v_fw = np.sqrt(np.minimum(np.minimum(vpk * vpk, v0 * v0 + 2 * accel * s_mid),
+                              v1 * v1 + 2 * accel * np.maximum(L - s_mid, 0.0)))
+    band = max(SPEED_TOL * vpk, SPEED_TOL_ABS_MM_S)
+    if np.max(np.abs(v_fw - v_plan)) <= band:
+        return vpk
+    return None
+
+
+def _pieces(u_pts: np.ndarray, t_pts: np.ndarray, L: float, min_dt: float, sampled: bool,
+            accel: float = 0.0):
+    """Split one segment into as few pieces as keep F within the speed tolerance of the plan.
+
+    u_pts, t_pts: (P,) fraction of the segment and time at the segment's start, its interior
+    samples and its end. ``accel``: the acceleration the firmware uses on this segment.
+    Returns a list of (u_end, speed_mm_s)."""
+    if u_pts.size <= 2 or L <= 0:
+        dt = max(t_pts[-1] - t_pts[0], 1e-9)
+        return [(1.0, L / dt)]
+    du = np.diff(u_pts) * L
+    dt = np.diff(t_pts)
+    v = np.where(dt > 0, du / np.where(dt > 0, dt, 1.0), 0.0)
+    if not sampled:
+        s_mid = (u_pts[:-1] + u_pts[1:]) * 0.5 * L
+        t_mid = (t_pts[:-1] + t_pts[1:]) * 0.5
+        f_one = _firmware_band(v, s_mid, t_mid, L, t_pts[0], t_pts[-1], accel)
+        if f_one is not None:
+            return [(1.0, f_one)]
+    if sampled:
+        return [(float(u_pts[j + 1]), float(du[j] / dt[j]) if dt[j] > 0 else float(v.max()))
+                for j in range(du.size) if du[j] > 0]
+    out = []
+    j0 = 0
+    n = du.size
+    vmin = vmax = v[0]
+    t_piece0 = t_pts[0]
+    for j in range(1, n + 1):
+        end = j == n
+        if not end:
+            vj = v[j]
+            lo, hi = min(vmin, vj), max(vmax, vj)
+            band = max(SPEED_TOL * hi, SPEED_TOL_ABS_MM_S)
+            if hi - lo <= band or (t_pts[j] - t_piece0) < min_dt:
+                vmin, vmax = lo, hi
+                continue
+        # close the piece [j0, j)
+        d = float(np.sum(du[j0:j]))
+        tt = float(t_pts[j] - t_pts[j0])
+        if d > 0:
+            out.append((float(u_pts[j]), d / max(tt, 1e-9)))
+        j0 = j
+        t_piece0 = t_pts[j]
+        if not end:
+            vmin = vmax = v[j]
+    if not out:
+        return [(1.0, L / max(t_pts[-1] - t_pts[0], 1e-9))]
+    # a last piece shorter than min_dt is merged into the one before it
+    if len(out) > 1:
+        u_a = out[-3][0] if len(out) > 2 else 0.0
+        u_b = out[-2][0]
+        if t_pts[-1] - _t_of(u_pts, t_pts, u_b) < min_dt:
+            t_a = _t_of(u_pts, t_pts, u_a)
+            out = out[:-2] + [(1.0, (1.0 - u_a) * L / max(t_pts[-1] - t_a, 1e-9))]
+    out[-1] = (1.0, out[-1][1])
+    return out
+
+
+def _t_of(u_pts, t_pts, u):
+    return float(np.interp(u, u_pts, t_pts))
+
+
+class _Emitter:
+    """Formats the sub-moves of one original move."""
+
+    def __init__(self, program: Program):
+        self.program = program
+
+    def pieces_lines(self, mv, seg_geom, pieces, ending: bytes, comment: bytes) -> list[bytes]:
+        words = mv.words
+        axes_present = [L for L in "XYZ" if L in words]
+        has_e = "E" in words
+        nd = {L: max(XYZ_DECIMALS, _decimals(words[L])) for L in axes_present}
+        nd_e = max(E_DECIMALS, _decimals(words["E"])) if has_e else E_DECIMALS
+        off = mv.offset_mm
+        start = np.asarray(mv.start_mm)
+        end = np.asarray(mv.end_mm)
+        arc = mv.arc
+        out = []
+        written_sum = {L: Decimal(0) for L in "XYZE"}
+        prev_pt = start.copy()
+        n = len(pieces)
+        for j, (u, v) in enumerate(pieces):
+            last = j == n - 1
+            if arc is None:
+                pt = start + (end - start) * u
+            else:
+                th = math.atan2(start[1] - arc.center_mm[1], start[0] - arc.center_mm[0]) + arc.sweep_rad * u
+                pt = np.array([arc.center_mm[0] + arc.radius_mm * math.cos(th),
+                               arc.center_mm[1] + arc.radius_mm * math.sin(th),
+                               start[2] + (end[2] - start[2]) * u])
+            e = mv.e_start_mm + mv.de_mm * u
+            parts = [mv.code]
+            for k, L in enumerate("XYZ"):
+                if L not in axes_present:
+                    continue
+                if last:
+                    if mv.xyz_relative:
+                        parts.append(f"{L}{_dec(Decimal(words[L]) - written_sum[L])}")
+                    else:
+                        parts.append(f"{L}{words[L]}")
+                else:
+                    if mv.xyz_relative:
+                        # relative: delta from the previous *written* point, exact decimals
+                        target = Decimal(_fmt(pt[k] - start[k], nd[L]))
+                        delta = target - written_sum[L]
+                        written_sum[L] += delta
+                        txt = _fmt(float(delta), nd[L])
+                    else:
+                        txt = _fmt(pt[k] - off[k], nd[L])
+                    parts.append(f"{L}{txt}")
+            if arc is not None:
+                cx, cy = arc.center_mm
+                parts.append(f"I{_fmt(cx - prev_pt[0], 4)}")
+                parts.append(f"J{_fmt(cy - prev_pt[1], 4)}")
+            if has_e:
+                if last:
+                    if mv.e_relative:
+                        parts.append(f"E{_dec(Decimal(words['E']) - written_sum['E'])}")
+                    else:
+                        parts.append(f"E{words['E']}")
+                else:
+                    if mv.e_relative:
+                        target = Decimal(_fmt(e - mv.e_start_mm, nd_e))
+                        delta = target - written_sum["E"]
+                        written_sum["E"] += delta
+                        parts.append(f"E{_fmt(float(delta), nd_e)}")
+                    else:
+                        parts.append(f"E{_fmt(e - off[3], nd_e)}")
+            parts.append(f"F{_fmt_feed(v)}")
+            line = " ".join(parts).encode("ascii")
+            if j == 0 and comment:
+                line += b" " + comment
+            out.append(line + ending)
+            prev_pt = pt
+        return out
+
+
+def write(program: Program, path: Path, schedule: Schedule, profile, *, mode: str = "refeed",
+          accel_mm_s2: np.ndarray | None = None) -> WriteResult:
+    """Write the re-timed G-code (see module docstring).
+
+    ``accel_mm_s2``: (N,) the acceleration the firmware will use on each segment; where the
+    plan follows the firmware's own trapezoid, one line with F = the plan's peak speed
+    reproduces it, so no extra lines are written."""
+    sampled = mode == "sampled"
+    fw = profile.firmware
+    min_dt = 0.0 if sampled else 1.0 / fw.max_lines_per_s
+    t_start, t_end = segment_times(schedule, path)
+    s = schedule.s_mm
+    ts = schedule.ts_s
+    seg_of_move = {int(m): k for k, m in enumerate(path.move_index)}
+    emitter = _Emitter(program)
+    moves = program.moves
+    move_at_line = {mv.line_no: i for i, mv in enumerate(moves)}
+    total_s = schedule.duration_s
+    meta = MetadataUpdater(program, total_s)
+    # elapsed time at each line: start of the next segment's motion after it
+    seg_lines = np.array([moves[int(m)].line_no for m in path.move_index], dtype=np.int64)
+
+    out: list[bytes] = []
+    tags: list = []
+    first_ending = _ending(program.lines[0]) or b"\n"
+    ident = (IDENT_PREFIX + f" {__version__}".encode() +
+             (f" (mode sampled, Ts = {ts * 1000:g} ms: one G1 per sample)".encode() if sampled else b"")
+             + first_ending)
+    orig_feed = 0.0  # modal F of the original file at this point, mm/s
+    cur_feed = 0.0  # modal F the firmware has from our output, mm/s
+    moves_changed = 0
+    sub_moves = 0
+    for i, raw in enumerate(program.lines):
+        if i == 1 or (i == 0 and len(program.lines) == 1):
+            if i == 0:
+                out.append(raw if raw.endswith(b"\n") else raw + first_ending)
+                tags.append((T_ORIG, i))
+                out.append(ident)
+                tags.append((T_IDENT, -1))
+                continue
+            out.append(ident)
+            tags.append((T_IDENT, -1))
+        mi = move_at_line.get(i)
+        if mi is not None:
+            mv = moves[mi]
+            k = seg_of_move.get(mi)
+            retime = k is not None and not mv.fixed
+            if retime:
+                ta, tb = t_start[k], t_end[k]
+                lo, hi = path.s0_mm[k], path.s0_mm[k + 1]
+                j0 = np.searchsorted(s, lo, side="right")
+                j1 = np.searchsorted(s, hi, side="left")
+                inner_s = s[j0:j1]
+                inner_t = np.arange(j0, j1) * ts
+                L = hi - lo
+                u_pts = np.concatenate([[0.0], (inner_s - lo) / L, [1.0]])
+                t_pts = np.concatenate([[ta], inner_t, [tb]])
+                pieces = _pieces(u_pts, t_pts, L, min_dt, sampled,
+                                 0.0 if accel_mm_s2 is None else float(accel_mm_s2[k]))
+                text = raw.decode("latin-1")
+                semi = text.find(";")
+                comment = raw[semi:].rstrip(b"\r\n") if semi >= 0 else b""
+                lines = emitter.pieces_lines(mv, None, pieces, _ending(raw) or first_ending, comment)
+                out.extend(lines)
+                tags.extend([(T_NEW, mi)] * len(lines))
+                moves_changed += 1
+                sub_moves += len(lines)
+                cur_feed = pieces[-1][1]
+                if "F" in mv.words:
+                    orig_feed = float(mv.words["F"]) / 60.0
+                continue
+            # an untouched motion line: restore the modal F it relies on
+            if "F" not in mv.words and abs(cur_feed - mv.feed_mm_s) > 1e-9 and cur_feed > 0:
+                out.append(f"G1 F{_fmt(mv.feed_mm_s * 60.0, 4)}".encode() + (_ending(raw) or first_ending))
+                tags.append((T_RESTORE, mi))
+            out.append(raw)
+            tags.append((T_ORIG, i))
+            cur_feed = orig_feed = mv.feed_mm_s
+            continue
+        # non-motion line
+        k_next = int(np.searchsorted(seg_lines, i, side="right"))
+        t_here = float(t_start[k_next]) if k_next < t_start.size else total_s
+        new = meta.update(i, raw, t_here)
+        if new is not None:
+            out.append(new)
+            tags.append((T_META, i))
+        else:
+            out.append(raw)
+            tags.append((T_ORIG, i))
+        f_word = _feed_only(raw)
+        if f_word is not None:
+            cur_feed = orig_feed = f_word
+    return WriteResult(data=b"".join(out), tags=tags, lines_written=len(out),
+                       moves_changed=moves_changed, sub_moves=sub_moves)
+
+
+def _feed_only(raw: bytes) -> float | None:
+    """F of a `G0/G1 F...` line without axes (modal feed set), mm/s; else None."""
+    text = raw.split(b";", 1)[0].strip().upper()
+    if not text.startswith((b"G1", b"G0")) or b"F" not in text:
+        return None
+    toks = text.split()
+    if toks[0] not in (b"G1", b"G0", b"G01", b"G00"):
+        return None
+    f = None
+    for t in toks[1:]:
+        if t[:1] in (b"X", b"Y", b"Z", b"E"):
+            return None
+        if t[:1] == b"F":
+            try:
+                f = float(t[1:]) / 60.0
+            except ValueError:
+                return None
+    return f
+
+
+def write_trajectory_csv(fh, schedule: Schedule, path: Path) -> None:
+    """``t,x,y,z,e`` per sample of the plan (s, mm)."""
+    s = schedule.s_mm
+    pos = path.position(s)
+    k = path.segment_at(s)
+    L = path.length_mm[k]
+    u = np.where(L > 0, (s - path.s0_mm[k]) / np.where(L > 0, L, 1.0), 0.0)
+    e_start = np.concatenate([[0.0], np.cumsum(path.de_mm)])[:-1]
+    e = e_start[k] + path.de_mm[k] * np.clip(u, 0, 1)
+    t = np.arange(s.size) * schedule.ts_s
+    arr = np.column_stack([t, pos, e])
+    fh.write(b"t,x,y,z,e\n")
+    np.savetxt(fh, arr, fmt=["%.4f", "%.5f", "%.5f", "%.5f", "%.5f"], delimiter=",")

@@ -1,0 +1,126 @@
+"""The one short function that runs the stages in order:
+
+    read (Program) -> build_path (Path) -> plan (Schedule) -> write (bytes) -> verify -> replace
+"""
+
+from __future__ import annotations
+
+import pathlib
+import time
+from dataclasses import dataclass
+
+from .errors import AlreadyProcessedError, FeedOptError
+from .gcode.path import build_path
+from .gcode.reader import read_file
+from .gcode.verify import atomic_write, verify
+from .gcode.writer import write, write_trajectory_csv
+from .plan.kinematic import plan_kinematic, segment_accel
+from .report import Report
+
+METHODS = ("kinematic", "conservative", "pb", "dd", "pidd", "oracle")
+
+
+@dataclass
+class Options:
+    method: str = "kinematic"
+    tolerance_mm: float | None = None
+    stringency: float | None = None
+    vmax_mm_s: float | None = None
+    amax_mm_s2: float | None = None
+    mode: str = "refeed"
+    use_slicer_feed: bool = False
+    force: bool = False
+    dry_run: bool = False
+    trajectory: str | None = None
+
+
+def read_for(path, profile):
+    """Read a G-code file with the profile's firmware semantics."""
+    fw = profile.firmware
+    return read_file(path, flavour=fw.flavour, g91_relative_e=fw.g91_relative_e,
+                     retract_mm=fw.retract_mm, retract_speed_mm_s=fw.retract_speed_mm_s,
+                     e_feed_mm_s=fw.max_feed_mm_s["e"])
+
+
+def path_for(program, profile):
+    fw = profile.firmware
+    return build_path(program, e_feed_cap_mm_s=min(fw.max_feed_mm_s["e"],
+                                                   profile.limits.axis_vmax_mm_s["e"]),
+                      e_accel_mm_s2=min(fw.max_accel_mm_s2["e"], profile.limits.axis_amax_mm_s2["e"]))
+
+
+def plan(path, profile, opts: Options):
+    """The Schedule of the chosen method."""
+    if opts.method == "kinematic":
+        return plan_kinematic(path, profile, use_slicer_feed=opts.use_slicer_feed,
+                              vmax_mm_s=opts.vmax_mm_s, amax_mm_s2=opts.amax_mm_s2)
+    try:
+        from .optimize import plan_schedule
+    except ImportError:
+        raise FeedOptError(f"method '{opts.method}' is not available in this build; use "
+                           "--method kinematic") from None
+    return plan_schedule(opts.method, path, profile,
+                         tolerance_mm=opts.tolerance_mm or profile.limits.tolerance_mm,
+                         stringency=opts.stringency or profile.limits.stringency,
+                         vmax_mm_s=opts.vmax_mm_s, amax_mm_s2=opts.amax_mm_s2)
+
+
+def input_time_s(path, profile, opts: Options) -> float:
+    """Time the original file takes under the same limits: the firmware plans it at the
+    slicer's feeds (capped by the profile's V_max)."""
+    sched = plan_kinematic(path, profile, use_slicer_feed=True, vmax_mm_s=opts.vmax_mm_s,
+                           amax_mm_s2=opts.amax_mm_s2)
+    return sched.info["plan_time_s"]
+
+
+def optimize_file(in_path, out_path, profile, opts: Options) -> Report:
+    """Optimize ``in_path`` and write ``out_path`` (may be the same file: in place)."""
+    in_path = pathlib.Path(in_path)
+    out_path = pathlib.Path(out_path) if out_path is not None else in_path
+    wall = {}
+    t0 = time.perf_counter()
+    program = read_for(in_path, profile)
+    wall["parse"] = time.perf_counter() - t0
+    if program.processed_line is not None and not opts.force:
+        raise AlreadyProcessedError(
+            f"{in_path}:{program.processed_line + 1}: already processed by gcode-feedopt; "
+            "pass --force to process it again (re-slice for the best result)")
+    t0 = time.perf_counter()
+    path = path_for(program, profile)
+    wall["path"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    sched = plan(path, profile, opts)
+    t_in = input_time_s(path, profile, opts)
+    wall["plan"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    result = write(program, path, sched, profile, mode=opts.mode,
+                   accel_mm_s2=segment_accel(path, profile, opts.amax_mm_s2))
+    wall["write"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    fw = profile.firmware
+    verify(program, result, flavour=fw.flavour, g91_relative_e=fw.g91_relative_e,
+           name=str(out_path))
+    wall["verify"] = time.perf_counter() - t0
+    if not opts.dry_run:
+        t0 = time.perf_counter()
+        atomic_write(out_path, result.data)
+        if opts.trajectory:
+            tmp = pathlib.Path(opts.trajectory)
+            with open(tmp, "wb") as fh:
+                write_trajectory_csv(fh, sched, path)
+        wall["save"] = time.perf_counter() - t0
+    info = sched.info
+    rep = Report(
+        input=str(in_path), output=None if opts.dry_run else str(out_path),
+        machine=profile.name, method=sched.method, mode=opts.mode,
+        tolerance_mm=opts.tolerance_mm or profile.limits.tolerance_mm,
+        stringency=opts.stringency or profile.limits.stringency,
+        moves=len(program.moves), moves_changed=result.moves_changed,
+        lines_in=len(program.lines), lines_written=result.lines_written,
+        input_time_s=t_in, output_time_s=sched.duration_s, plan_time_s=sched.duration_s,
+        time_source="kinematic firmware model (same limits for input and output)",
+        dry_run=opts.dry_run,
+        predicted_max_contour_error_mm=info.get("predicted_max_contour_error_mm"),
+        predicted_p95_contour_error_mm=info.get("predicted_p95_contour_error_mm"),
+        stage_wall_s={k: round(v, 4) for k, v in wall.items()})
+    return rep

@@ -1,0 +1,128 @@
+"""The kinematic planner: time-optimal path speed under feed, per-axis acceleration and the
+firmware's junction rule, sampled at Ts. The first optimizer, and later the baseline.
+
+Limits, per segment:
+- speed: the profile's V_max (or the override), each axis's maximum feed projected on the
+  direction, optionally the slicer's F; on arcs also the centripetal limit v²/R ≤ A/2;
+- acceleration along the path: min over axes of A_axis/|u_axis| on lines (so no axis ever
+  exceeds its limit); on arcs A/2 tangential (the other half is left to the centripetal part,
+  so |a_x|, |a_y| ≤ A everywhere on the arc);
+- junctions: the firmware's own junction rule (Marlin's junction deviation, or Klipper's
+  square-corner velocity mapped to a junction deviation plus its centripetal limit), so a plan
+  never asks for a corner speed the firmware would refuse — the written G-code then runs as
+  planned. Full reversals, E-only moves, dwells, waits and tool changes are exact stops.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..gcode.path import SEG_LINE, Path
+from .schedule import Schedule
+from .trapezoid import Trapezoids, forward_backward, junction_speeds, sample, trapezoids
+
+
+def _axis_caps(path: Path, axis_limit: dict, scalar_cap: float | None) -> np.ndarray:
+    """(N,) highest path-direction value such that no axis exceeds its own limit."""
+    t_beg, t_end = path.end_tangents()
+    # the worse of the two ends (arcs turn); for lines both are equal
+    u = np.maximum(np.abs(t_beg), np.abs(t_end))
+    lim = np.array([axis_limit["x"], axis_limit["y"], axis_limit["z"]], dtype=float)
+    with np.errstate(divide="ignore"):
+        caps = np.where(u > 1e-12, lim[None, :] / u, np.inf).min(axis=1)
+    arc = path.kind != SEG_LINE
+    if np.any(arc):
+        # along an arc the direction sweeps: both X and Y see the full value at some point
+        caps[arc] = np.minimum(caps[arc], min(lim[0], lim[1]))
+    if scalar_cap is not None:
+        caps = np.minimum(caps, scalar_cap)
+    return caps
+
+
+def deviation_for(firmware, accel_mm_s2: float) -> tuple[float, bool]:
+    """Junction deviation (mm) of the firmware and whether Klipper's centripetal rule applies."""
+    if firmware.flavour == "klipper":
+        scv = firmware.square_corner_velocity_mm_s
+        return scv * scv * (math.sqrt(2.0) - 1.0) / accel_mm_s2, True
+    return firmware.junction_deviation_mm, False
+
+
+def plan_trapezoids(path: Path, *, vmax_mm_s: float, axis_vmax_mm_s: dict,
+                    axis_amax_mm_s2: dict, firmware, use_slicer_feed: bool = False,
+                    feed_scale: float = 1.0) -> Trapezoids:
+    """Look-ahead trapezoid plan of the whole path (see module docstring)."""
+    n = path.n_segments
+    vcap = _axis_caps(path, axis_vmax_mm_s, vmax_mm_s)
+    if use_slicer_feed:
+        vcap = np.minimum(vcap, path.feed_mm_s * feed_scale)
+    acc = _axis_caps(path, axis_amax_mm_s2, None)
+    arc = path.kind != SEG_LINE
+    if np.any(arc):
+        a_xy = min(axis_amax_mm_s2["x"], axis_amax_mm_s2["y"])
+        acc[arc] = np.minimum(acc[arc], 0.5 * a_xy)
+        vcap[arc] = np.minimum(vcap[arc], np.sqrt(0.5 * a_xy * path.radius_mm[arc]))
+    # numbered (fixed) lines keep the slicer's speed: they are written back unchanged
+    vcap = np.where(path.fixed, np.minimum(vcap, path.feed_mm_s), vcap)
+    a_ref = float(np.median(acc)) if n else 1.0
+    dev, centripetal = deviation_for(firmware, a_ref)
+    vj = junction_speeds(path.junction_cos(), acc, dev, vcap, path.stop_after,
+                         path.length_mm if centripetal else None)
+    vj = forward_backward(vj, path.length_mm, acc)
+    return trapezoids(vj, path.length_mm, acc, vcap, path.dwell_after_s, path.dwell_before_s)
+
+
+def effective_limits(profile, vmax_mm_s: float | None = None, amax_mm_s2: float | None = None):
+    """(vmax, axis_vmax, axis_amax): the profile's limits, overridden, and never above the
+    firmware's own maxima (M203/M201 of the profile)."""
+    lim = profile.limits
+    fw = profile.firmware
+    vmax = lim.vmax_mm_s if vmax_mm_s is None else float(vmax_mm_s)
+    amax = lim.amax_mm_s2 if amax_mm_s2 is None else float(amax_mm_s2)
+    axis_a = dict(lim.axis_amax_mm_s2)
+    axis_a["x"] = min(axis_a["x"], amax)
+    axis_a["y"] = min(axis_a["y"], amax)
+    for k in ("x", "y", "z"):
+        axis_a[k] = min(axis_a[k], fw.max_accel_mm_s2[k])
+    axis_v = {k: min(lim.axis_vmax_mm_s[k], fw.max_feed_mm_s[k]) for k in ("x", "y", "z")}
+    return vmax, axis_v, axis_a
+
+
+def segment_accel(path: Path, profile, amax_mm_s2: float | None = None) -> np.ndarray:
+    """(N,) acceleration along each segment that keeps every axis within its limit."""
+    _, _, axis_a = effective_limits(profile, None, amax_mm_s2)
+    acc = _axis_caps(path, axis_a, None)
+    arc = path.kind != SEG_LINE
+    if np.any(arc):
+        acc[arc] = np.minimum(acc[arc], 0.5 * min(axis_a["x"], axis_a["y"]))
+    return acc
+
+
+def plan_kinematic(path: Path, profile, *, use_slicer_feed: bool = False,
+                   vmax_mm_s: float | None = None, amax_mm_s2: float | None = None,
+                   feed_scale: float = 1.0) -> Schedule:
+    """Time-optimal kinematic schedule of ``path`` under the profile's limits.
+
+    Args:
+        path: the parametric path.
+        profile: MachineProfile (limits, firmware, ts_s).
+        use_slicer_feed: also cap each move at the slicer's F.
+        vmax_mm_s, amax_mm_s2: override the profile's V_max and X/Y A_max.
+        feed_scale: multiplies the slicer's F when ``use_slicer_feed``.
+
+    Returns:
+        Schedule with ``info``: ``trapezoids`` (the phase plan), ``segment_start_s`` and
+        ``segment_end_s`` (N,) motion start/end times.
+    """
+    vmax, axis_v, axis_a = effective_limits(profile, vmax_mm_s, amax_mm_s2)
+    amax = axis_a["x"]
+    tr = plan_trapezoids(path, vmax_mm_s=vmax, axis_vmax_mm_s=axis_v, axis_amax_mm_s2=axis_a,
+                         firmware=profile.firmware, use_slicer_feed=use_slicer_feed,
+                         feed_scale=feed_scale)
+    s = sample(tr, path.s0_mm, profile.ts_s)
+    start = tr.t0_s[:-1]
+    return Schedule(ts_s=profile.ts_s, s_mm=s, method="kinematic",
+                    info={"trapezoids": tr, "segment_start_s": start,
+                          "segment_end_s": start + tr.motion_s, "plan_time_s": tr.duration_s,
+                          "vmax_mm_s": vmax, "amax_mm_s2": amax})

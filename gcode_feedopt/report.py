@@ -1,0 +1,72 @@
+"""The run report: what was done, in figures, as JSON (``--report``) and as a short human
+summary on stderr."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, field
+
+
+@dataclass
+class Report:
+    """Figures of one run. Times in seconds, errors in mm."""
+
+    input: str
+    output: str | None
+    machine: str
+    method: str
+    mode: str
+    tolerance_mm: float
+    stringency: float
+    moves: int
+    moves_changed: int
+    lines_in: int
+    lines_written: int
+    input_time_s: float
+    output_time_s: float
+    plan_time_s: float
+    time_source: str
+    dry_run: bool = False
+    predicted_max_contour_error_mm: float | None = None
+    predicted_p95_contour_error_mm: float | None = None
+    stage_wall_s: dict = field(default_factory=dict)
+    notes: list = field(default_factory=list)
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def saved_pct(self) -> float:
+        if self.input_time_s <= 0:
+            return 0.0
+        return 100.0 * (self.input_time_s - self.output_time_s) / self.input_time_s
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["saved_pct"] = round(self.saved_pct, 3)
+        return d
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), indent=2, default=float)
+
+    def summary(self) -> str:
+        """A few lines a person reads at a glance."""
+        def hms(t):
+            t = int(round(t))
+            h, r = divmod(t, 3600)
+            m, s = divmod(r, 60)
+            return f"{h}h{m:02d}m{s:02d}s" if h else f"{m}m{s:02d}s"
+
+        lines = [f"gcode-feedopt: {self.input}: {hms(self.input_time_s)} -> {hms(self.output_time_s)} "
+                 f"({self.saved_pct:+.1f} % saved; {self.time_source})",
+                 f"  method {self.method}, machine {self.machine}, {self.moves_changed} of "
+                 f"{self.moves} moves re-timed, {self.lines_written} lines written"
+                 + (" (dry run: nothing written)" if self.dry_run else "")]
+        if self.predicted_max_contour_error_mm is not None:
+            lines.append(f"  predicted contour error: worst {self.predicted_max_contour_error_mm:.3f} mm, "
+                         f"95th percentile {self.predicted_p95_contour_error_mm:.3f} mm "
+                         f"(tolerance {self.tolerance_mm:g} mm at {self.stringency:.0%})")
+        else:
+            lines.append(f"  predicted contour error: n/a ({self.method} plans kinematic limits only; "
+                         f"tolerance {self.tolerance_mm:g} mm not checked)")
+        for n in self.notes:
+            lines.append(f"  note: {n}")
+        return "\n".join(lines)
