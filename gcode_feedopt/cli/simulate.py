@@ -69,17 +69,17 @@ def simulate_trajectory(trajectory, profile, *, seed: int = 0, effects=(), tol_m
     return SimulationResult(trajectory=trajectory, output=output, metrics=result, timings_s=timings)
 
 
-def read_program(path):
-    """Read a G-code file into a Program (``gcode.reader``)."""
-    from ..gcode import reader
+def read_program(path, profile):
+    """Read a G-code file into a Program with the profile's firmware semantics."""
+    from ..pipeline import read_for
 
-    return reader.read_file(path)
+    return read_for(path, profile)
 
 
 def simulate_file(path, profile, **kwargs) -> SimulationResult:
     """Read ``path`` and ``simulate_program`` it; ``timings_s`` gains ``read``."""
     t0 = time.perf_counter()
-    program = read_program(path)
+    program = read_program(path, profile)
     t_read = time.perf_counter() - t0
     res = simulate_program(program, profile, **kwargs)
     res.timings_s["read"] = t_read
