@@ -14,7 +14,7 @@ from .gcode.path import build_path
 from .gcode.reader import read_file
 from .gcode.verify import atomic_write, verify
 from .gcode.writer import write, write_trajectory_csv
-from .plan.kinematic import plan_kinematic, segment_accel
+from .plan.kinematic import effective_limits, plan_kinematic, plan_trapezoids, segment_accel
 from .report import Report
 
 METHODS = ("kinematic", "conservative", "pb", "dd", "pidd", "oracle")
@@ -68,9 +68,10 @@ def plan(path, profile, opts: Options):
 def input_time_s(path, profile, opts: Options) -> float:
     """Time the original file takes under the same limits: the firmware plans it at the
     slicer's feeds (capped by the profile's V_max)."""
-    sched = plan_kinematic(path, profile, use_slicer_feed=True, vmax_mm_s=opts.vmax_mm_s,
-                           amax_mm_s2=opts.amax_mm_s2)
-    return sched.info["plan_time_s"]
+    vmax, axis_v, axis_a = effective_limits(profile, opts.vmax_mm_s, opts.amax_mm_s2)
+    tr = plan_trapezoids(path, vmax_mm_s=vmax, axis_vmax_mm_s=axis_v, axis_amax_mm_s2=axis_a,
+                         firmware=profile.firmware, use_slicer_feed=True)
+    return tr.duration_s
 
 
 def optimize_file(in_path, out_path, profile, opts: Options) -> Report:
