@@ -295,6 +295,10 @@ def read_program(data: bytes, name: str = "<input>", *, flavour: str = "marlin",
         if first not in "GMT":
             continue  # unknown code: passes through untouched
         words = _words(code, name, i)
+        if words is None and re.match(r"^[Gg]0*[0-3](?![0-9.])", code):
+            # a motion the firmware will run but we cannot read: refuse rather than lose track
+            raise GCodeError(f"{name}:{i + 1}: cannot read the motion line {code!r} (a word "
+                             "without a value?); fix the line, e.g. 'G1 X10 F1200'")
         if words is None:
             events.append(Event(i, code.split()[0].upper(), {}, stop=True, dwell_s=0.0,
                                 move_index=len(moves)))

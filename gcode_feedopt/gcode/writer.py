@@ -37,6 +37,12 @@ SPEED_TOL_ABS_MM_S = 1.0
 XYZ_DECIMALS = 4
 E_DECIMALS = 5
 
+#: Sampled mode: an interval shorter than this joins the next one, s.
+SLIVER_S = 1e-4
+#: No F below this is written (a piece at the very start of an acceleration from rest);
+#: 6 mm/min, below which firmware treat the feed as invalid or take forever.
+MIN_FEED_MM_S = 0.1
+
 # Tags of output lines.
 T_ORIG, T_META, T_NEW, T_RESTORE, T_IDENT = 0, 1, 2, 3, 4
 
@@ -82,7 +88,7 @@ def _dec(d: Decimal) -> str:
 
 
 def _fmt_feed(v_mm_s: float) -> str:
-    return _fmt(v_mm_s * 60.0, 1)
+    return _fmt(max(v_mm_s, MIN_FEED_MM_S) * 60.0, 1)
 
 
 def segment_times(schedule: Schedule, path: Path) -> tuple[np.ndarray, np.ndarray]:
@@ -150,8 +156,23 @@ def _pieces(u_pts: np.ndarray, t_pts: np.ndarray, L: float, min_dt: float, sampl
         if f_one is not None:
             return [(1.0, f_one)]
     if sampled:
-        return [(float(u_pts[j + 1]), float(du[j] / dt[j]) if dt[j] > 0 else float(v.max()))
-                for j in range(du.size) if du[j] > 0]
+        # one piece per sample interval; slivers (a crossing a hair before a sample) join the
+        # next interval so no line is written for a sub-microsecond piece
+        out = []
+        j0 = 0
+        for j in range(du.size):
+            last = j == du.size - 1
+            if not last and (t_pts[j + 1] - t_pts[j0]) < SLIVER_S:
+                continue
+            d = float(np.sum(du[j0:j + 1]))
+            tt = float(t_pts[j + 1] - t_pts[j0])
+            if d > 0:
+                out.append((float(u_pts[j + 1]), d / max(tt, 1e-9)))
+            j0 = j + 1
+        if not out:
+            return [(1.0, L / max(t_pts[-1] - t_pts[0], 1e-9))]
+        out[-1] = (1.0, out[-1][1])
+        return out
     out = []
     j0 = 0
     n = du.size
