@@ -9,7 +9,7 @@ import pathlib
 import time
 from dataclasses import dataclass
 
-from .errors import AlreadyProcessedError, FeedOptError
+from .errors import AlreadyProcessedError, FeedOptError, GCodeError
 from .gcode.path import build_path
 from .gcode.reader import read_file
 from .gcode.verify import atomic_write, verify
@@ -88,6 +88,8 @@ def optimize_file(in_path, out_path, profile, opts: Options) -> Report:
             "pass --force to process it again (re-slice for the best result)")
     t0 = time.perf_counter()
     path = path_for(program, profile)
+    if path.n_segments == 0:
+        raise GCodeError(f"{in_path}: no move travels in X, Y or Z; nothing to re-time")
     wall["path"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     sched = plan(path, profile, opts)
