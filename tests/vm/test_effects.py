@@ -9,7 +9,7 @@ from gcode_feedopt.errors import FeedOptError
 from gcode_feedopt.vm import effects as fx
 from gcode_feedopt.vm.plant import simulate_axes
 
-from vm_helpers import TS, step_invariant_impulse
+from .vm_helpers import TS, step_invariant_impulse
 
 UNIT = {"x": np.array([1.0]), "y": np.array([1.0])}
 

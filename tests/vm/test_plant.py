@@ -9,7 +9,7 @@ from gcode_feedopt.vm import effects as fx
 from gcode_feedopt.vm.plant import Plant, respond, simulate_axes
 from gcode_feedopt.vm.trajectory import Trajectory
 
-from vm_helpers import TS, second_order_step, step_invariant_impulse
+from .vm_helpers import TS, second_order_step, step_invariant_impulse
 
 
 def test_second_order_step_matches_closed_form():

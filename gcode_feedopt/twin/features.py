@@ -1,0 +1,95 @@
+"""Predicted position of the physics model and the feature vectors ψ_t (paper Eqs. 2, 12, 13).
+
+x̂(t) = x(0) + Σ_n h[n] (x_c(t−n) − x_c(0)): the convolution acts on the deviation from the
+first commanded sample, so a machine at rest stays where it is whatever the DC truncation of h.
+With h ~ N(μ_h, L Lᵀ), x̂(t) is Gaussian with mean μ_hᵀw_t and variance ||Lᵀw_t||², w_t the
+window of past commands (full tap covariance; the paper's Eq. 12 keeps only the diagonal).
+
+ψ_t = [1, x̂(t−n2·Ts), …, x̂(t), e(t−n3·Ts), …, e(t−Ts)] with e = x − x̂ (measured minus physics);
+Σ_ψ is diagonal as in the paper's Eq. 13: var x̂ for the x̂ terms and for the e terms (x is
+measured, so e inherits x̂'s uncertainty).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.signal import oaconvolve
+
+from .frf import ImpulseResponse
+
+
+def xhat(ir: ImpulseResponse, x_cmd: np.ndarray, *, with_var: bool = True,
+         diagonal_only: bool = False):
+    """Mean (T,) and variance (T,) of the physics-model position for commanded x_cmd (T,).
+
+    ``diagonal_only`` gives the paper's Eq. 12 variance Σ σ_h[n]² w_t[n]² (for comparison)."""
+    x0 = float(x_cmd[0])
+    w = np.asarray(x_cmd, float) - x0
+    T = w.size
+    mean = x0 + oaconvolve(w, ir.mean)[:T]
+    if not with_var:
+        return mean, None
+    if diagonal_only:
+        return mean, oaconvolve(w * w, ir.var)[:T]
+    L = ir.factor
+    if L.shape[1] == 0:
+        return mean, np.zeros(T)
+    var = np.zeros(T)
+    # chunk the columns to bound memory (T × chunk floats)
+    chunk = max(1, int(2e7 // max(T, 1)))
+    for j in range(0, L.shape[1], chunk):
+        Y = oaconvolve(w[None, :], L[:, j:j + chunk].T, axes=1)[:, :T]
+        var += np.einsum("ij,ij->j", Y, Y)
+    return mean, var
+
+
+def n_features(n2: int, n3: int) -> int:
+    return 1 + (n2 + 1) + n3
+
+
+def lagged(a: np.ndarray, lag: int, fill: float) -> np.ndarray:
+    """a(t − lag), with ``fill`` before the start."""
+    if lag == 0:
+        return a
+    out = np.empty_like(a)
+    out[:lag] = fill
+    out[lag:] = a[:-lag]
+    return out
+
+
+def feature_matrix(xhat_mean, xhat_var, e, n2: int, n3: int):
+    """Ψ mean (T, d) and variance (T, d) for a whole trajectory.
+
+    Args:
+        xhat_mean, xhat_var: (T,) physics-model position and its variance.
+        e: (T,) errors x − x̂ (measured minus physics) or, where not measured, their
+            predictions; e(t) enters ψ_{t+1} … ψ_{t+n3}.
+    """
+    T = xhat_mean.size
+    d = n_features(n2, n3)
+    M = np.empty((T, d))
+    V = np.zeros((T, d))
+    M[:, 0] = 1.0
+    x0 = float(xhat_mean[0])
+    for j in range(n2 + 1):  # columns 1..n2+1: x̂(t-n2) ... x̂(t)
+        lag = n2 - j
+        M[:, 1 + j] = lagged(xhat_mean, lag, x0)
+        V[:, 1 + j] = lagged(xhat_var, lag, 0.0)
+    for j in range(n3):  # e(t-n3) ... e(t-1)
+        lag = n3 - j
+        M[:, 2 + n2 + j] = lagged(e, lag, 0.0)
+        V[:, 2 + n2 + j] = lagged(xhat_var, lag, 0.0)
+    return M, V
+
+
+def physics_prior(n2: int, n3: int, *, var_xhat: float = 1e-4, var_e: float | None = None,
+                  var_bias: float = 1e-4):
+    """The prior that reproduces the physics model: β = e_{x̂(t)} (weight 1 on the current
+    x̂, 0 elsewhere) with independent variances (used when a profile has no learned prior)."""
+    d = n_features(n2, n3)
+    mu = np.zeros(d)
+    mu[1 + n2] = 1.0
+    var = np.full(d, var_xhat)
+    var[0] = var_bias
+    var[2 + n2:] = (1.0 / max(n3, 1)) if var_e is None else var_e
+    return mu, np.diag(var)
