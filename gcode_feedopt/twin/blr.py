@@ -14,13 +14,16 @@ docs/twin.md, checked against finite differences in the tests):
     ∇ℓ = r μ_ψ / s + (r²/s² − 1/s) Σ_ψβ
     ∇²ℓ = −μ_ψμ_ψᵀ/s − (2r/s²)(μ_ψβᵀΣ_ψ + Σ_ψβμ_ψᵀ) + (2/s² − 4r²/s³) Σ_ψββᵀΣ_ψ + (r²/s² − 1/s) Σ_ψ
 
-The Laplace step expands ℓ about β̄ = μ_β (the prior mean, as the paper does). The observed
-Hessian of a single sample is indefinite whenever r² > s (its last term), which would make the
-"posterior covariance" not positive definite; by default we use the Fisher information (the
-expected negative Hessian), F = μ_ψμ_ψᵀ/s + 2 Σ_ψββᵀΣ_ψ/s², which is positive semi-definite and
-rank two, so the update is an O(n²) Woodbury step. ``curvature="hessian"`` uses the observed
-Hessian and falls back to F when the posterior precision would not be positive definite.
-With Σ_ψ = 0 both reduce exactly to the conjugate update of Eq. 19.
+The Laplace step expands ℓ about β̄ = μ_β (the prior mean, as the paper does). Two things go
+wrong with the full expansion of a single sample, and the tests show both: the observed Hessian
+is indefinite whenever r² > s (its last term), so the "posterior covariance" need not be
+positive definite; and the variance gradient (r²/s² − 1/s)Σ_ψβ̄ pushes β outward — to explain a
+large residual by inflating βᵀΣ_ψβ — with a step that a one-sided expansion cannot bound, so a
+sequence of updates diverges. The default (``moment``) therefore holds s at β̄: the update is
+then exact for the Gaussian p(x|β) ≈ N(βᵀμ_ψ, s(β̄)), carries the feature (known) uncertainty as
+inflated noise, is O(n²) and never increases any posterior variance. ``fisher`` (expected
+negative Hessian, PSD, rank two) and ``hessian`` (observed, with a Fisher fallback) keep the
+paper's full expansion for comparison. With Σ_ψ = 0 all three reduce exactly to Eq. 19.
 """
 
 from __future__ import annotations
@@ -50,18 +53,27 @@ def grad_hess(beta, psi_mu, psi_var, x, sigma2):
     return g, H
 
 
-def laplace_update(mu, cov, psi_mu, psi_var, x, sigma2, curvature: str = "fisher"):
+def laplace_update(mu, cov, psi_mu, psi_var, x, sigma2, curvature: str = "moment"):
     """Posterior (μ, Σ) of β after one sample x (Laplace about the prior mean).
 
     Args:
         mu: (n,) prior mean. cov: (n, n) prior covariance.
         psi_mu: (n,) feature mean. psi_var: (n,) feature variances (diagonal Σ_ψ).
         x: the measured position. sigma2: σ_ε².
-        curvature: ``fisher`` (default) or ``hessian`` (see module docstring).
+        curvature: ``moment`` (default): the likelihood's variance s(β) is held at the
+            expansion point β̄ = μ, so the step is the exact Gaussian update with the noise
+            inflated by the feature uncertainty, β̄ᵀΣ_ψβ̄ + σ²; ``fisher``/``hessian``: the full
+            one-step Laplace of the paper with the variance gradient (see module docstring —
+            it overshoots when r² ≫ s, which the tests demonstrate).
     """
     Sb = psi_var * mu
     s = float(mu @ Sb) + sigma2
     r = x - float(mu @ psi_mu)
+    if curvature == "moment":
+        Cp = cov @ psi_mu
+        k = Cp / (s + float(psi_mu @ Cp))
+        new_cov = cov - np.outer(k, Cp)
+        return mu + k * r, 0.5 * (new_cov + new_cov.T)
     g = r * psi_mu / s + (r * r / s ** 2 - 1.0 / s) * Sb
     if curvature == "hessian":
         _, H = grad_hess(mu, psi_mu, psi_var, x, sigma2)
@@ -136,7 +148,7 @@ class BayesianRegressor:
     mu: np.ndarray
     cov: np.ndarray
     sigma2: float
-    curvature: str = "fisher"
+    curvature: str = "moment"
     n_updates: int = 0
 
     def predict(self, psi_mu, psi_var):
