@@ -18,9 +18,10 @@ and has a one-line SPEC form for ``--effect``::
 
 What each one does, and where the plant applies it (``STAGES``, in this order):
 
-1. ``response`` — ``resonance_shift``: the dominant mode of the drawn impulse response moves to
-   ``frequency_hz`` by re-scaling the response's frequency axis, H'(f) = H(f·f0/f1), i.e. the
-   time axis of h (see ``rescale_impulse_response``). Every feature of h moves with the mode.
+1. ``response`` — ``resonance_shift``: the dominant mode of the drawn impulse response (the
+   peak of |H| above 1 Hz, f0) moves to ``frequency_hz`` (f1) by re-scaling the response's
+   frequency axis, H'(f) = H(f·f0/f1), i.e. the time axis of h (see
+   ``rescale_impulse_response``). Every feature of h (a second mode too) moves by f1/f0.
 2. ``linear`` — after the convolution: ``gain`` scales the position about the machine origin
    (a steps/mm error: x = scale·x_m); ``delay`` shifts the output later by ``delay_s``
    (linear interpolation between samples; the first value is held before the start).

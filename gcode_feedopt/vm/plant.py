@@ -81,7 +81,7 @@ def simulate_axes(cmd_mm: np.ndarray, ts_s: float, impulse: Mapping[str, np.ndar
         effects: unknown effects, applied by stage (``effects.STAGES``), in order within one.
         noise_rng: generator for sensor noise (required when a ``noise`` effect is given).
         mode_hz: "x", "y" -> dominant mode frequency, Hz, used by ``resonance_shift``
-            (default: the peak of |H| of the drawn response).
+            (default: the peak of |H| of the given response, ``effects.dominant_mode_hz``).
     """
     cmd = np.asarray(cmd_mm, dtype=float)
     if cmd.ndim != 2 or cmd.shape[1] != 3:
@@ -158,16 +158,14 @@ class Plant:
         axis_seqs = draw_seq.spawn(len(PLANT_AXES))
         n = int(n_taps if n_taps is not None else profile.twin.n_taps)
         impulse = {}
-        mode_hz = {}
         for ax, s in zip(PLANT_AXES, axis_seqs):
             model = profile.axes[ax]
             h = np.asarray(draw_impulse_responses(model.frf, profile.ts_s, n,
                                                   np.random.default_rng(s), 1))[0]
             impulse[ax] = h
-            modes = getattr(model, "modes", None) or []
-            if modes:
-                mode_hz[ax] = float(modes[0].freq_hz)
-        self._init(profile.ts_s, impulse, effects, noise_seq, unit_dc_gain, mode_hz, seed)
+        # resonance_shift moves the peak of |H| of *this draw* (not the profile's nominal mode
+        # list): the frequency a diagnosis can measure in the log lands on frequency_hz
+        self._init(profile.ts_s, impulse, effects, noise_seq, unit_dc_gain, {}, seed)
 
     @classmethod
     def from_impulse(cls, ts_s: float, impulse: Mapping[str, np.ndarray],

@@ -116,3 +116,30 @@ def test_ts_mismatch_is_refused():
     plant = Plant.from_impulse(TS, {"x": h, "y": h})
     with pytest.raises(ValueError, match="Ts="):
         plant.run(Trajectory(ts_s=0.001, pos_mm=_cmd(10), e_mm=np.zeros(10)))
+
+
+def test_plant_from_profile_is_one_seeded_draw():
+    from gcode_feedopt.profile import load_profile
+
+    prof = load_profile("ender3pro")
+    a, b = Plant(prof, seed=4), Plant(prof, seed=4, effects=[fx.Gain("x", scale=1.01)])
+    c = Plant(prof, seed=5)
+    for ax in ("x", "y"):
+        np.testing.assert_array_equal(a.impulse[ax], b.impulse[ax])  # an effect never changes the draw
+        assert a.impulse[ax].sum() == pytest.approx(1.0, abs=1e-12)
+        assert a.impulse[ax].size == prof.twin.n_taps
+        assert np.max(np.abs(a.impulse[ax] - c.impulse[ax])) > 1e-4  # another seed, another machine
+    assert np.max(np.abs(a.impulse["x"] - a.impulse["y"])) > 1e-3  # axes drawn independently
+
+
+def test_resonance_shift_moves_the_measured_peak_of_a_profile_draw():
+    from gcode_feedopt.profile import load_profile
+
+    prof = load_profile("ender3pro")
+    K = 3000
+    cmd = np.zeros((K, 3))
+    cmd[10:, 0] = 1.0
+    plant = Plant(prof, seed=2, effects=[fx.ResonanceShift("x", frequency_hz=45.0)])
+    out = plant.simulate(Trajectory(ts_s=prof.ts_s, pos_mm=cmd, e_mm=np.zeros(K)))
+    # the step response's derivative is h: its |H| peak is where the effect put it (FFT bin 0.03 Hz)
+    assert fx.dominant_mode_hz(np.diff(out.actual_mm[:, 0], prepend=0.0), prof.ts_s) == pytest.approx(45.0, abs=0.1)
