@@ -43,6 +43,16 @@ def xhat(ir: ImpulseResponse, x_cmd: np.ndarray, *, with_var: bool = True,
     return mean, var
 
 
+def factor_series(ir: ImpulseResponse, w: np.ndarray) -> np.ndarray:
+    """(r, T) Y with x̂(t) − E x̂(t) = Y[:, t]ᵀ z, z ~ N(0, I_r): the random part of the
+    predicted position for command deviations w (T,). cov(x̂(t), x̂(u)) = Y[:, t] · Y[:, u]."""
+    L = ir.factor
+    T = w.size
+    if L.shape[1] == 0:
+        return np.zeros((0, T))
+    return oaconvolve(w[None, :], L.T, axes=1)[:, :T]
+
+
 def n_features(n2: int, n3: int) -> int:
     return 1 + (n2 + 1) + n3
 
@@ -82,14 +92,20 @@ def feature_matrix(xhat_mean, xhat_var, e, n2: int, n3: int):
     return M, V
 
 
-def physics_prior(n2: int, n3: int, *, var_xhat: float = 1e-4, var_e: float | None = None,
+def physics_prior(n2: int, n3: int, *, var_xhat: float = 1e-8, var_e: float | None = None,
                   var_bias: float = 1e-4):
     """The prior that reproduces the physics model: β = e_{x̂(t)} (weight 1 on the current
-    x̂, 0 elsewhere) with independent variances (used when a profile has no learned prior)."""
+    x̂, 0 elsewhere) with independent variances (used when a profile has no learned prior).
+
+    Scales (features are deviations from the start, so a weight error on x̂ costs that error
+    times the distance travelled): x̂ weights ±1e-4 (5 µm over 50 mm — the physics is trusted
+    there, its uncertainty is already in Σ_ψ); error-feedback weights ±1/n3 each, so their sum
+    — a full-strength feedback of the last errors — is within one σ (±1/√n3 each would make the
+    first second of predictions ten times too cautious); bias ±0.01 mm (σ_ε)."""
     d = n_features(n2, n3)
     mu = np.zeros(d)
     mu[1 + n2] = 1.0
     var = np.full(d, var_xhat)
     var[0] = var_bias
-    var[2 + n2:] = (1.0 / max(n3, 1)) if var_e is None else var_e
+    var[2 + n2:] = (1.0 / max(n3, 1) ** 2) if var_e is None else var_e
     return mu, np.diag(var)

@@ -163,7 +163,24 @@ def impulse_response(*args, method: str = "minmax") -> ImpulseResponse:
     keep_b = st.sigma_im > RANK_DROP * max(st.sigma_im.max(), 1e-300)
     L = np.hstack([A[:, keep_a] * st.sigma_re[keep_a], B[:, keep_b] * st.sigma_im[keep_b]])
     var = np.einsum("ij,ij->i", L, L)
-    return ImpulseResponse(ts_s=ts_s, mean=mean, var=var, factor=L)
+    return ImpulseResponse(ts_s=ts_s, mean=mean, var=var, factor=compress_factor(L))
+
+
+#: Share of the total tap variance the compressed covariance factor must keep (the FRF
+#: scatter is spread over every bin, so Σ_h is not low-rank; 99.9 % keeps ~240 of 500
+#: directions and changes no standard deviation by more than 0.05 %).
+FACTOR_ENERGY = 1.0 - 1e-3
+
+
+def compress_factor(L: np.ndarray) -> np.ndarray:
+    """An (n, r) factor with the same L Lᵀ up to 1e-3 of its trace and the fewest columns
+    (SVD): the twin convolves the commands with every column, so r sets its cost."""
+    if L.shape[1] == 0:
+        return L
+    U, S, _ = np.linalg.svd(L, full_matrices=False)
+    e = np.cumsum(S * S)
+    r = int(np.searchsorted(e, FACTOR_ENERGY * e[-1]) + 1)
+    return U[:, :r] * S[:r]
 
 
 def draw_coefficients(st: CoefficientStats, rng: np.random.Generator, size: int) -> np.ndarray:
