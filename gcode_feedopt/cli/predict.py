@@ -1,0 +1,71 @@
+"""``gcode-feedopt predict --machine M log.csv -o pred.csv`` — run the twin over a log."""
+
+from __future__ import annotations
+
+import pathlib
+
+import click
+import numpy as np
+
+from ..errors import LogError
+from ..profile import load_profile
+
+
+def read_log_columns(path: pathlib.Path, ts_s: float):
+    """t, x_cmd, y_cmd and (if present) x, y from a log; refuses malformed logs."""
+    try:
+        with open(path, "rb") as fh:
+            header = fh.readline().decode("ascii", "replace").strip()
+    except FileNotFoundError:
+        raise LogError(f"{path}: no such file; check the path") from None
+    cols = [c.strip() for c in header.split(",")]
+    for need in ("t", "x_cmd", "y_cmd"):
+        if need not in cols:
+            raise LogError(f"{path}:1: column '{need}' missing; a log starts with the header "
+                           "t,x_cmd,y_cmd[,x,y] (s, mm)")
+    try:
+        data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+    except ValueError as exc:
+        raise LogError(f"{path}: a row is not {len(cols)} numbers ({exc}); fix or re-export the log") from None
+    if data.shape[0] < 10:
+        raise LogError(f"{path}: only {data.shape[0]} rows; a log needs at least 10 samples")
+    if not np.all(np.isfinite(data)):
+        row = int(np.argwhere(~np.isfinite(data))[0, 0]) + 2
+        raise LogError(f"{path}:{row}: not a finite number; fix the row or cut the log there")
+    t = data[:, cols.index("t")]
+    dt = np.diff(t)
+    ts = float(np.median(dt))
+    if np.any(np.abs(dt - ts) > 0.01 * ts):
+        row = int(np.argmax(np.abs(dt - ts) > 0.01 * ts)) + 3
+        raise LogError(f"{path}:{row}: samples are not uniform (step {dt[row - 3]:.6g} s vs "
+                       f"{ts:.6g} s); resample the log to a fixed period")
+    if abs(ts - ts_s) > 0.01 * ts_s:
+        raise LogError(f"{path}: sample period {ts * 1000:.4g} ms differs from the profile's Ts "
+                       f"{ts_s * 1000:g} ms; resample the log or use a profile with that Ts")
+    get = {c: data[:, i] for i, c in enumerate(cols)}
+    return t, get["x_cmd"], get["y_cmd"], get.get("x"), get.get("y")
+
+
+@click.command("predict")
+@click.argument("log", type=click.Path(dir_okay=False, path_type=pathlib.Path))
+@click.option("--machine", "-m", required=True, help="Built-in profile or profile .yaml.")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, path_type=pathlib.Path),
+              help="Write t,x_mean,x_std,y_mean,y_std here.")
+@click.option("--no-learn", is_flag=True, help="Do not learn from the measured columns.")
+def predict(log, machine, output, no_learn):
+    """Predict the actual X/Y positions of LOG's commanded motion with the twin, learning online
+    (one sample behind) from the measured columns x, y when the log has them."""
+    from ..twin.model import axis_twin
+
+    prof = load_profile(machine)
+    t, xc, yc, xm, ym = read_log_columns(log, prof.ts_s)
+    out = [t]
+    for axis, cmd, meas in (("x", xc, xm), ("y", yc, ym)):
+        tw = axis_twin(prof, axis)
+        mean, std = tw.run(cmd, meas, learn=(meas is not None and not no_learn))
+        out += [mean, std]
+    arr = np.column_stack(out)
+    with open(output, "w") as fh:
+        fh.write("t,x_mean,x_std,y_mean,y_std\n")
+        np.savetxt(fh, arr, fmt=["%.6f", "%.6f", "%.6f", "%.6f", "%.6f"], delimiter=",")
+    click.echo(f"predict: {len(t)} samples -> {output}", err=True)
