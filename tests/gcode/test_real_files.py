@@ -43,3 +43,23 @@ def test_second_run_refused_then_forced(tmp_path):
         optimize_file(out, tmp_path / "o2.gcode", prof, Options())
     optimize_file(out, tmp_path / "o2.gcode", prof, Options(force=True))
     assert (tmp_path / "o2.gcode").read_bytes().count(IDENT_PREFIX) == 2
+
+
+@pytest.mark.host
+def test_fresh_prusaslicer_slice(tmp_path):
+    """Slice the committed STL with Debian's prusa-slicer now, then optimize it."""
+    import shutil
+    import subprocess
+
+    exe = shutil.which("prusa-slicer")
+    if exe is None:
+        pytest.skip("prusa-slicer not installed (.ci/run installs it)")
+    out = tmp_path / "fresh.gcode"
+    cmd = [exe, "--export-gcode", "--load", str(REPO / "sample_gcode" / "ender3.ini"),
+           "--center", "117.5,117.5", "-o", str(out), str(REPO / "sample_gcode" / "part.stl")]
+    subprocess.run(cmd, check=True, capture_output=True, timeout=300)
+    before = out.read_bytes()
+    rep = optimize_file(out, tmp_path / "opt.gcode", load_profile("ender3pro"), Options())
+    assert out.read_bytes() == before
+    assert rep.output_time_s <= rep.input_time_s
+    assert rep.moves_changed > 1000
