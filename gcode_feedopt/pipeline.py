@@ -14,8 +14,9 @@ from .gcode.path import build_path
 from .gcode.reader import read_file
 from .gcode.verify import atomic_write, verify
 from .gcode.writer import write, write_trajectory_csv
-from .plan.kinematic import effective_limits, plan_kinematic, plan_trapezoids, segment_accel
+from .plan.kinematic import effective_limits, plan_kinematic, plan_trapezoids, writer_accel
 from .report import Report
+from .vm import firmware
 
 METHODS = ("kinematic", "conservative", "pb", "dd", "pidd", "oracle")
 
@@ -49,11 +50,12 @@ def path_for(program, profile):
                       e_accel_mm_s2=min(fw.max_accel_mm_s2["e"], profile.limits.axis_amax_mm_s2["e"]))
 
 
-def plan(path, profile, opts: Options):
+def plan(path, profile, opts: Options, fw_limits=None):
     """The Schedule of the chosen method."""
     if opts.method == "kinematic":
         return plan_kinematic(path, profile, use_slicer_feed=opts.use_slicer_feed,
-                              vmax_mm_s=opts.vmax_mm_s, amax_mm_s2=opts.amax_mm_s2)
+                              vmax_mm_s=opts.vmax_mm_s, amax_mm_s2=opts.amax_mm_s2,
+                              fw_limits=fw_limits)
     try:
         from .optimize import plan_schedule
     except ImportError:
@@ -65,12 +67,12 @@ def plan(path, profile, opts: Options):
                          vmax_mm_s=opts.vmax_mm_s, amax_mm_s2=opts.amax_mm_s2)
 
 
-def input_time_s(path, profile, opts: Options) -> float:
+def input_time_s(path, profile, opts: Options, fw_limits=None) -> float:
     """Time the original file takes under the same limits: the firmware plans it at the
     slicer's feeds (capped by the profile's V_max)."""
     vmax, axis_v, axis_a = effective_limits(profile, opts.vmax_mm_s, opts.amax_mm_s2)
     tr = plan_trapezoids(path, vmax_mm_s=vmax, axis_vmax_mm_s=axis_v, axis_amax_mm_s2=axis_a,
-                         firmware=profile.firmware, use_slicer_feed=True)
+                         firmware=profile.firmware, use_slicer_feed=True, fw_limits=fw_limits)
     return tr.duration_s
 
 
@@ -92,18 +94,23 @@ def optimize_file(in_path, out_path, profile, opts: Options) -> Report:
         raise GCodeError(f"{in_path}: no move travels in X, Y or Z; nothing to re-time")
     wall["path"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    sched = plan(path, profile, opts)
-    t_in = input_time_s(path, profile, opts)
+    fw_limits = firmware.move_limits(program, profile)
+    sched = plan(path, profile, opts, fw_limits)
+    t_in = input_time_s(path, profile, opts, fw_limits)
     wall["plan"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     result = write(program, path, sched, profile, mode=opts.mode,
-                   accel_mm_s2=segment_accel(path, profile, opts.amax_mm_s2))
+                   accel_mm_s2=writer_accel(path, profile, fw_limits, opts.amax_mm_s2))
     wall["write"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     fw = profile.firmware
-    verify(program, result, flavour=fw.flavour, g91_relative_e=fw.g91_relative_e,
-           name=str(out_path))
+    out_program = verify(program, result, flavour=fw.flavour, g91_relative_e=fw.g91_relative_e,
+                         name=str(out_path))
     wall["verify"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    fw_in = firmware.estimate_time_s(program, profile)
+    fw_out = firmware.estimate_time_s(out_program, profile)
+    wall["firmware"] = time.perf_counter() - t0
     if not opts.dry_run:
         t0 = time.perf_counter()
         atomic_write(out_path, result.data)
@@ -120,10 +127,14 @@ def optimize_file(in_path, out_path, profile, opts: Options) -> Report:
         stringency=opts.stringency or profile.limits.stringency,
         moves=len(program.moves), moves_changed=result.moves_changed,
         lines_in=len(program.lines), lines_written=result.lines_written,
-        input_time_s=t_in, output_time_s=sched.duration_s, plan_time_s=sched.duration_s,
-        time_source="kinematic firmware model (same limits for input and output)",
+        input_time_s=fw_in, output_time_s=fw_out, plan_time_s=sched.duration_s,
+        time_source=f"{fw.flavour} firmware model",
         dry_run=opts.dry_run,
         predicted_max_contour_error_mm=info.get("predicted_max_contour_error_mm"),
         predicted_p95_contour_error_mm=info.get("predicted_p95_contour_error_mm"),
-        stage_wall_s={k: round(v, 4) for k, v in wall.items()})
+        stage_wall_s={k: round(v, 4) for k, v in wall.items()},
+        extra={"input_time_same_limits_s": t_in})
+    if fw_out > fw_in:
+        rep.notes.append("the firmware runs the original faster than our output: the slicer's "
+                         "feeds exceed the profile's limits somewhere (see --vmax)")
     return rep

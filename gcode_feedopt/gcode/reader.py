@@ -309,9 +309,11 @@ def read_program(data: bytes, name: str = "<input>", *, flavour: str = "marlin",
         tcodes = [v for (L, v) in words if L == "T"]
         params = {}
         for L, v in words:
-            if L in "GMNT":
+            if L in "GMN" or (L == "T" and not (gcodes or mcodes)):
                 continue
             params[L] = raw_vals.get(L, v)
+        if gcodes or mcodes:
+            tcodes = []  # "M204 P500 T500", "M104 T1 S200": T is a parameter there
         if any(v in ("", None) for v in params.values()):
             raise GCodeError(f"{name}:{i + 1}: a word has no value in {code!r}; give each "
                              "word a number or remove it")

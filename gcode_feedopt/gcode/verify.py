@@ -29,8 +29,9 @@ XYZ_TOL_MM = 1e-9
 
 
 def verify(program: Program, result: WriteResult, *, flavour: str, g91_relative_e: bool,
-           name: str = "<output>") -> None:
-    """Raise VerifyError if the output breaks an invariant (see module docstring)."""
+           name: str = "<output>") -> Program:
+    """Raise VerifyError if the output breaks an invariant (see module docstring); return the
+    output as parsed (the firmware model times it)."""
     out_lines = split_lines(result.data)
     if len(out_lines) != len(result.tags):
         raise VerifyError(f"{name}: internal error: {len(out_lines)} lines written but "
@@ -90,6 +91,7 @@ def verify(program: Program, result: WriteResult, *, flavour: str, g91_relative_
     idents = sum(1 for tag, _ in result.tags if tag == T_IDENT)
     if idents != 1:
         raise VerifyError(f"{name}: expected one ident line, wrote {idents}")
+    return out
 
 
 def atomic_write(target: pathlib.Path, data: bytes) -> None:

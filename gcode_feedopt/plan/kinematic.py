@@ -21,7 +21,7 @@ import numpy as np
 
 from ..gcode.path import SEG_LINE, Path
 from .schedule import Schedule
-from .trapezoid import Trapezoids, forward_backward, junction_speeds, sample, trapezoids
+from .trapezoid import Trapezoids, forward_backward, junction_limits, sample, trapezoids
 
 
 def _axis_caps(path: Path, axis_limit: dict, scalar_cap: float | None) -> np.ndarray:
@@ -49,10 +49,46 @@ def deviation_for(firmware, accel_mm_s2: float) -> tuple[float, bool]:
     return firmware.junction_deviation_mm, False
 
 
+def _firmware_caps(path: Path, fw_limits):
+    """Per-segment accel cap, feed cap, junction deviation and jerk-rule junction speeds from
+    the firmware's limits in force at each move (vm.firmware.move_limits)."""
+    mi = path.move_index
+    t_beg, t_end = path.end_tangents()
+    u = np.maximum(np.abs(t_beg), np.abs(t_end))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        a_axis = np.where(u > 1e-12, fw_limits.max_accel_mm_s2[mi] / u, np.inf).min(axis=1)
+        v_axis = np.where(u > 1e-12, fw_limits.max_feed_mm_s[mi] / u, np.inf).min(axis=1)
+    acc = np.minimum(fw_limits.accel_mm_s2[mi], a_axis)
+    vcap = np.minimum(v_axis, fw_limits.velocity_mm_s[mi])
+    jd = fw_limits.jd_mm[mi]
+    jerk = fw_limits.jerk_mm_s[mi]
+    jerk_v = None
+    if np.any(np.isfinite(jerk[:, 0])) and path.n_segments > 1:
+        dv = np.abs(t_beg[1:] - t_end[:-1])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            jerk_v = np.where(dv > 1e-12, jerk[1:] / dv, np.inf).min(axis=1)
+        # finite only where classic jerk is on; junction_limits uses the deviation elsewhere
+        jerk_v = np.where(np.isfinite(jerk[1:, 0]), jerk_v, np.inf)
+    return acc, vcap, jd, jerk_v
+
+
+def writer_accel(path: Path, profile, fw_limits=None, amax_mm_s2: float | None = None):
+    """(N,) the acceleration the firmware will use on each segment (for the writer's check
+    that one line per move reproduces the plan)."""
+    acc = segment_accel(path, profile, amax_mm_s2)
+    if fw_limits is not None:
+        acc = np.minimum(acc, _firmware_caps(path, fw_limits)[0])
+    return acc
+
+
 def plan_trapezoids(path: Path, *, vmax_mm_s: float, axis_vmax_mm_s: dict,
                     axis_amax_mm_s2: dict, firmware, use_slicer_feed: bool = False,
-                    feed_scale: float = 1.0) -> Trapezoids:
-    """Look-ahead trapezoid plan of the whole path (see module docstring)."""
+                    feed_scale: float = 1.0, fw_limits=None) -> Trapezoids:
+    """Look-ahead trapezoid plan of the whole path (see module docstring).
+
+    ``fw_limits`` (vm.firmware.move_limits): the firmware's settings in force at each move
+    (M201/M203/M204/M205, SET_VELOCITY_LIMIT found in the file); the plan stays within them
+    so the firmware runs it as planned."""
     n = path.n_segments
     vcap = _axis_caps(path, axis_vmax_mm_s, vmax_mm_s)
     if use_slicer_feed:
@@ -65,10 +101,23 @@ def plan_trapezoids(path: Path, *, vmax_mm_s: float, axis_vmax_mm_s: dict,
         vcap[arc] = np.minimum(vcap[arc], np.sqrt(0.5 * a_xy * path.radius_mm[arc]))
     # numbered (fixed) lines keep the slicer's speed: they are written back unchanged
     vcap = np.where(path.fixed, np.minimum(vcap, path.feed_mm_s), vcap)
-    a_ref = float(np.median(acc)) if n else 1.0
-    dev, centripetal = deviation_for(firmware, a_ref)
-    vj = junction_speeds(path.junction_cos(), acc, dev, vcap, path.stop_after,
-                         path.length_mm if centripetal else None)
+    centripetal = firmware.flavour == "klipper"
+    jerk_v = None
+    if fw_limits is not None:
+        f_acc, f_vcap, jd, jerk_v = _firmware_caps(path, fw_limits)
+        acc = np.minimum(acc, f_acc)
+        vcap = np.minimum(vcap, f_vcap)
+        if centripetal:
+            scv = firmware.square_corner_velocity_mm_s
+            jd = scv * scv * (math.sqrt(2.0) - 1.0) / acc
+    else:
+        a_ref = float(np.median(acc)) if n else 1.0
+        jd = np.full(n, deviation_for(firmware, a_ref)[0])
+    vj = np.zeros(n + 1)
+    if n:
+        vj[1:n] = junction_limits(path.junction_cos(), acc, jd[1:],
+                                  path.length_mm if centripetal else None, jerk_v, vcap,
+                                  path.stop_after)
     vj = forward_backward(vj, path.length_mm, acc)
     return trapezoids(vj, path.length_mm, acc, vcap, path.dwell_after_s, path.dwell_before_s)
 
@@ -101,7 +150,7 @@ def segment_accel(path: Path, profile, amax_mm_s2: float | None = None) -> np.nd
 
 def plan_kinematic(path: Path, profile, *, use_slicer_feed: bool = False,
                    vmax_mm_s: float | None = None, amax_mm_s2: float | None = None,
-                   feed_scale: float = 1.0) -> Schedule:
+                   feed_scale: float = 1.0, fw_limits=None) -> Schedule:
     """Time-optimal kinematic schedule of ``path`` under the profile's limits.
 
     Args:
@@ -119,7 +168,7 @@ def plan_kinematic(path: Path, profile, *, use_slicer_feed: bool = False,
     amax = axis_a["x"]
     tr = plan_trapezoids(path, vmax_mm_s=vmax, axis_vmax_mm_s=axis_v, axis_amax_mm_s2=axis_a,
                          firmware=profile.firmware, use_slicer_feed=use_slicer_feed,
-                         feed_scale=feed_scale)
+                         feed_scale=feed_scale, fw_limits=fw_limits)
     s = sample(tr, path.s0_mm, profile.ts_s)
     start = tr.t0_s[:-1]
     return Schedule(ts_s=profile.ts_s, s_mm=s, method="kinematic",

@@ -70,6 +70,25 @@ def junction_speeds(turn_cos: np.ndarray, accel_mm_s2: np.ndarray, deviation_mm:
     return vj
 
 
+def junction_limits(turn_cos: np.ndarray, accel_mm_s2: np.ndarray, deviation_mm: np.ndarray,
+                    centripetal_len_mm: np.ndarray | None, jerk_v_mm_s: np.ndarray | None,
+                    vcap_mm_s: np.ndarray, stop_after: np.ndarray) -> np.ndarray:
+    """(N-1,) inner junction speeds with a junction deviation per junction, Klipper's
+    centripetal rule (when lengths are given), classic jerk where ``jerk_v_mm_s`` is finite,
+    the neighbours' caps and exact stops. Shared by the planners and the firmware models."""
+    n = vcap_mm_s.size
+    free = np.full(n, np.inf)
+    never = np.zeros(n, bool)
+    inner = junction_speeds(turn_cos, accel_mm_s2, 1.0, free, never)[1:n] * np.sqrt(deviation_mm)
+    if centripetal_len_mm is not None:
+        cen = junction_speeds(turn_cos, accel_mm_s2, np.inf, free, never, centripetal_len_mm)[1:n]
+        inner = np.minimum(inner, cen)
+    if jerk_v_mm_s is not None:
+        inner = np.where(np.isfinite(jerk_v_mm_s), jerk_v_mm_s, inner)
+    inner = np.minimum(inner, np.minimum(vcap_mm_s[:-1], vcap_mm_s[1:]))
+    return np.where(stop_after[:-1], 0.0, inner)
+
+
 def forward_backward(vj_mm_s: np.ndarray, length_mm: np.ndarray,
                      accel_mm_s2: np.ndarray) -> np.ndarray:
     """Lower the junction limits so each segment can go from its entry to its exit speed.

@@ -1,0 +1,359 @@
+"""Firmware planner models: G-code -> the commanded trajectory the firmware will run, at Ts.
+
+The printer's firmware re-plans every move with its own limits, so the commanded trajectory is
+the firmware's. Two models, chosen by the profile's ``firmware.flavour``:
+
+- **Marlin 2**: trapezoidal blocks; per-block acceleration = M204 P (print), T (travel) or
+  R (retract), limited per axis by M201 (a·|u_i| ≤ A_i); feed limited per axis by M203; junction
+  speed by junction deviation (M205 J; Marlin's formula v² = a·δ·sin(θ/2)/(1 − sin(θ/2)));
+  G2/G3 split into chords of ``mm_per_arc_segment`` like Marlin's plan_arc. When the file sets
+  classic jerk (M205 X/Y without J, as PrusaSlicer and Cura write for jerk-configured Marlin),
+  the junction speed is the highest at which no axis changes speed by more than its jerk.
+- **Klipper**: look-ahead with square_corner_velocity (mapped to a junction deviation,
+  δ = scv²(√2 − 1)/a) and its centripetal limit ½·L·a·tan(θ/2) on both neighbours;
+  minimum_cruise_ratio (or max_accel_to_decel) caps the peak speed of short moves;
+  SET_VELOCITY_LIMIT (VELOCITY, ACCEL, ACCEL_TO_DECEL, SQUARE_CORNER_VELOCITY,
+  MINIMUM_CRUISE_RATIO) and M204 S/P/T honoured in file order.
+
+Both: exact stops at E-only moves, dwells (G4), waits (M400, M109, ...), homing and tool
+changes; firmware retraction (G10/G11) takes retract_mm/retract_speed. Settings found in the
+file apply from that line on.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..plan.trapezoid import forward_backward, junction_limits, sample, trapezoids
+from .trajectory import Trajectory
+
+#: Marlin's minimum planner speed (MINIMUM_PLANNER_SPEED), mm/s: junctions never go below it
+#: unless the firmware stops there.
+MIN_PLANNER_SPEED_MM_S = 0.05
+
+
+@dataclass
+class _Limits:
+    accel_print: float
+    accel_travel: float
+    accel_retract: float
+    max_accel: dict
+    max_feed: dict
+    jd: float
+    scv: float
+    min_cruise_ratio: float
+    velocity: float
+    #: classic jerk per axis (M205 X Y Z E) when the file asks for it; None = junction deviation
+    jerk: dict | None = None
+
+
+def _initial(profile) -> _Limits:
+    fw = profile.firmware
+    return _Limits(accel_print=fw.accel_mm_s2, accel_travel=fw.travel_accel_mm_s2,
+                   accel_retract=fw.accel_mm_s2, max_accel=dict(fw.max_accel_mm_s2),
+                   max_feed=dict(fw.max_feed_mm_s), jd=fw.junction_deviation_mm,
+                   scv=fw.square_corner_velocity_mm_s,
+                   min_cruise_ratio=fw.minimum_cruise_ratio,
+                   velocity=max(fw.max_feed_mm_s["x"], fw.max_feed_mm_s["y"]))
+
+
+def _apply_event(lim: _Limits, ev, klipper: bool) -> None:
+    p = ev.params
+    n = ev.name
+    if n == "M204":
+        if "S" in p:
+            lim.accel_print = lim.accel_travel = float(p["S"])
+        if "P" in p:
+            lim.accel_print = float(p["P"])
+        if "T" in p:
+            lim.accel_travel = float(p["T"])
+        if "R" in p:
+            lim.accel_retract = float(p["R"])
+        if klipper:  # Klipper: M204 sets the one accel (S, or min of P and T)
+            a = float(p["S"]) if "S" in p else min(float(p.get("P", math.inf)), float(p.get("T", math.inf)))
+            if math.isfinite(a):
+                lim.accel_print = lim.accel_travel = a
+    elif n == "M201":
+        for L in "XYZE":
+            if L in p:
+                lim.max_accel[L.lower()] = float(p[L])
+    elif n == "M203":
+        for L in "XYZE":
+            if L in p:
+                lim.max_feed[L.lower()] = float(p[L])
+    elif n == "M205":
+        if "J" in p:
+            lim.jd = float(p["J"])
+            lim.jerk = None
+        elif any(L in p for L in "XY") and not klipper:
+            # the slicer configured classic jerk (Prusa, many Creality builds): model it
+            j = dict(lim.jerk or {"x": 10.0, "y": 10.0, "z": 0.3, "e": 5.0})
+            for L in "XYZE":
+                if L in p:
+                    j[L.lower()] = float(p[L])
+            lim.jerk = j
+    elif n == "SET_VELOCITY_LIMIT":
+        if isinstance(p.get("VELOCITY"), float):
+            lim.velocity = p["VELOCITY"]
+        if isinstance(p.get("ACCEL"), float):
+            lim.accel_print = lim.accel_travel = p["ACCEL"]
+        if isinstance(p.get("SQUARE_CORNER_VELOCITY"), float):
+            lim.scv = p["SQUARE_CORNER_VELOCITY"]
+        if isinstance(p.get("MINIMUM_CRUISE_RATIO"), float):
+            lim.min_cruise_ratio = p["MINIMUM_CRUISE_RATIO"]
+        if isinstance(p.get("ACCEL_TO_DECEL"), float) and lim.accel_print > 0:
+            lim.min_cruise_ratio = max(0.0, 1.0 - p["ACCEL_TO_DECEL"] / lim.accel_print)
+
+
+@dataclass(frozen=True)
+class Blocks:
+    """The firmware's planner blocks (N): straight pieces in XYZ+E.
+
+    start_mm (N,3), end_mm (N,3), e0_mm (N,), de_mm (N,), length_mm (N,) (XYZ length, or |ΔE|
+    for E-only blocks), accel (N,), peak_accel (N,), vcap (N,), stop_after (N,), dwell_after_s
+    (N,), lead_s; plus ``jd`` and ``centripetal`` of the junction rule per junction."""
+
+    start_mm: np.ndarray
+    end_mm: np.ndarray
+    e0_mm: np.ndarray
+    de_mm: np.ndarray
+    length_mm: np.ndarray
+    accel: np.ndarray
+    peak_accel: np.ndarray
+    vcap: np.ndarray
+    stop_after: np.ndarray
+    dwell_after_s: np.ndarray
+    jd: np.ndarray
+    turn_cos: np.ndarray
+    lead_s: float
+    klipper: bool
+    #: (N-1,) classic-jerk junction limit (inf where junction deviation applies)
+    jerk_v: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class MoveLimits:
+    """The firmware's limits in force at every move of a program (M moves).
+
+    accel_mm_s2: (M,) M204 P (extruding) or T (travel) — Klipper: its one accel;
+    max_accel_mm_s2, max_feed_mm_s: (M, 3) M201 / M203 for X, Y, Z;
+    jd_mm: (M,) junction deviation (Klipper: from square_corner_velocity);
+    jerk_mm_s: (M, 3) classic jerk, NaN where junction deviation applies;
+    velocity_mm_s: (M,) Klipper's max velocity (inf for Marlin)."""
+
+    accel_mm_s2: np.ndarray
+    max_accel_mm_s2: np.ndarray
+    max_feed_mm_s: np.ndarray
+    jd_mm: np.ndarray
+    jerk_mm_s: np.ndarray
+    velocity_mm_s: np.ndarray
+
+
+def move_limits(program, profile) -> MoveLimits:
+    """What the firmware will allow for each move, honouring the settings found in the file, so
+    a planner can stay within them (the firmware would otherwise run our plan slower)."""
+    klipper = profile.firmware.flavour == "klipper"
+    lim = _initial(profile)
+    events = program.events
+    ei = 0
+    m = len(program.moves)
+    acc = np.empty(m)
+    macc = np.empty((m, 3))
+    mfeed = np.empty((m, 3))
+    jd = np.empty(m)
+    jerk = np.full((m, 3), np.nan)
+    vel = np.full(m, np.inf)
+    for mi, mv in enumerate(program.moves):
+        while ei < len(events) and events[ei].move_index <= mi:
+            _apply_event(lim, events[ei], klipper)
+            ei += 1
+        a = lim.accel_print if mv.de_mm > 0 else lim.accel_travel
+        acc[mi] = a
+        macc[mi] = [lim.max_accel[k] for k in "xyz"]
+        mfeed[mi] = [lim.max_feed[k] for k in "xyz"]
+        jd[mi] = lim.scv ** 2 * (math.sqrt(2) - 1) / a if klipper else lim.jd
+        if lim.jerk is not None:
+            jerk[mi] = [lim.jerk[k] for k in "xyz"]
+        if klipper:
+            vel[mi] = lim.velocity
+    return MoveLimits(acc, macc, mfeed, jd, jerk, vel)
+
+
+def build_blocks(program, profile) -> Blocks:
+    """Split the program into the firmware's planner blocks with the limits in force."""
+    fw = profile.firmware
+    klipper = fw.flavour == "klipper"
+    lim = _initial(profile)
+    events = program.events
+    ei = 0
+    rows = []  # (start, end, e0, de, L, accel, peak_accel, vcap, jd, eonly)
+    stop_idx: dict[int, float] = {}
+    lead = 0.0
+
+    def stop(dwell):
+        nonlocal lead
+        if rows:
+            k = len(rows) - 1
+            stop_idx[k] = stop_idx.get(k, 0.0) + dwell
+        else:
+            lead += dwell
+
+    for mi, mv in enumerate(program.moves):
+        while ei < len(events) and events[ei].move_index <= mi:
+            ev = events[ei]
+            _apply_event(lim, ev, klipper)
+            if ev.stop:
+                stop(ev.dwell_s)
+            ei += 1
+        feed = mv.feed_mm_s
+        if klipper:
+            feed = min(feed, lim.velocity)
+        pts = [np.asarray(mv.start_mm, float)]
+        if mv.arc is not None:
+            arc = mv.arc
+            planar = abs(arc.sweep_rad) * arc.radius_mm
+            nseg = max(1, int(math.ceil(planar / fw.mm_per_arc_segment)))
+            th0 = math.atan2(mv.start_mm[1] - arc.center_mm[1], mv.start_mm[0] - arc.center_mm[0])
+            for j in range(1, nseg + 1):
+                u = j / nseg
+                th = th0 + arc.sweep_rad * u
+                pts.append(np.array([arc.center_mm[0] + arc.radius_mm * math.cos(th),
+                                     arc.center_mm[1] + arc.radius_mm * math.sin(th),
+                                     mv.start_mm[2] + (mv.end_mm[2] - mv.start_mm[2]) * u]))
+            pts[-1] = np.asarray(mv.end_mm, float)
+        else:
+            pts.append(np.asarray(mv.end_mm, float))
+        total = sum(float(np.linalg.norm(pts[j + 1] - pts[j])) for j in range(len(pts) - 1))
+        de_total = mv.de_mm
+        if total <= 1e-9:
+            if abs(de_total) <= 1e-12:
+                continue
+            # E-only block: a stop on both sides
+            v = min(feed, lim.max_feed["e"])
+            a = min(lim.accel_retract, lim.max_accel["e"])
+            if rows:
+                stop(0.0)
+            rows.append((pts[0], pts[0], mv.e_start_mm, de_total, abs(de_total), a, a, v, lim.jd, True,
+                         lim.jerk))
+            stop(0.0)
+            continue
+        e0 = mv.e_start_mm
+        extruding = de_total > 0
+        base_a = lim.accel_print if extruding else lim.accel_travel
+        for j in range(len(pts) - 1):
+            d = pts[j + 1] - pts[j]
+            L = float(np.linalg.norm(d))
+            if L <= 1e-12:
+                continue
+            u = np.abs(d) / L
+            de = de_total * L / total
+            # per-axis caps (E too: its speed is de/L times the path speed)
+            ue = abs(de) / L
+            a = base_a
+            v = feed
+            for k, ax in enumerate("xyz"):
+                if u[k] > 1e-12:
+                    a = min(a, lim.max_accel[ax] / u[k])
+                    v = min(v, lim.max_feed[ax] / u[k])
+            if ue > 1e-12:
+                a = min(a, lim.max_accel["e"] / ue)
+                v = min(v, lim.max_feed["e"] / ue)
+            peak_a = a * (1.0 - lim.min_cruise_ratio) if klipper else a
+            jd = lim.scv ** 2 * (math.sqrt(2) - 1) / a if klipper else lim.jd
+            rows.append((pts[j], pts[j + 1], e0, de, L, a, peak_a, v, jd, False, lim.jerk))
+            e0 += de
+    while ei < len(events):
+        if events[ei].stop:
+            stop(events[ei].dwell_s)
+        ei += 1
+    n = len(rows)
+    if n == 0:
+        z = np.zeros(0)
+        return Blocks(np.zeros((0, 3)), np.zeros((0, 3)), z, z, z, z, z, z, np.zeros(0, bool), z,
+                      z, z, lead, klipper)
+    start = np.array([r[0] for r in rows])
+    end = np.array([r[1] for r in rows])
+    e0 = np.array([r[2] for r in rows])
+    de = np.array([r[3] for r in rows])
+    L = np.array([r[4] for r in rows])
+    acc = np.array([r[5] for r in rows])
+    peak = np.array([r[6] for r in rows])
+    vcap = np.array([r[7] for r in rows])
+    jd = np.array([r[8] for r in rows])
+    eonly = np.array([r[9] for r in rows])
+    stop_after = np.zeros(n, bool)
+    dwell = np.zeros(n)
+    for k, dw in stop_idx.items():
+        stop_after[k] = True
+        dwell[k] = dw
+    stop_after[-1] = True
+    stop_after |= eonly
+    d = end - start
+    nrm = np.linalg.norm(d, axis=1, keepdims=True)
+    unit = np.where(nrm > 0, d / np.where(nrm > 0, nrm, 1), 0.0)
+    turn = np.einsum("ij,ij->i", unit[:-1], unit[1:])
+    # E-only neighbours: stop (handled by stop_after); give them a reversal so no speed carries
+    turn = np.where(eonly[:-1] | eonly[1:], -1.0, turn)
+    jerk_v = np.full(max(n - 1, 0), np.inf)
+    for k in range(n - 1):
+        jk = rows[k + 1][10]
+        if jk is None:
+            continue
+        dv = np.abs(unit[k + 1] - unit[k])
+        lim_v = np.inf
+        for a_i, ax in enumerate("xyz"):
+            if dv[a_i] > 1e-12:
+                lim_v = min(lim_v, jk[ax] / dv[a_i])
+        jerk_v[k] = lim_v
+    return Blocks(start, end, e0, de, L, acc, peak, vcap, stop_after, dwell, jd, turn, lead, klipper,
+                  jerk_v)
+
+
+def _plan(blocks: Blocks):
+    n = blocks.length_mm.size
+    # junction rule with the block's own deviation (Marlin: M205 J in force; Klipper: from scv)
+    vj = np.zeros(n + 1)
+    if n:
+        vj[1:n] = junction_limits(blocks.turn_cos, blocks.accel, blocks.jd[1:],
+                                  blocks.length_mm if blocks.klipper else None,
+                                  blocks.jerk_v, blocks.vcap, blocks.stop_after)
+    vj = forward_backward(vj, blocks.length_mm, blocks.accel)
+    tr = trapezoids(vj, blocks.length_mm, blocks.accel, blocks.vcap, blocks.dwell_after_s,
+                    blocks.lead_s)
+    if blocks.klipper and np.any(blocks.peak_accel < blocks.accel):
+        # minimum_cruise_ratio: the peak of each block is what the smoothed accel allows
+        v0, v1 = vj[:-1], vj[1:]
+        peak = np.sqrt((2 * blocks.peak_accel * blocks.length_mm + v0 * v0 + v1 * v1) / 2)
+        vcap2 = np.maximum(np.minimum(blocks.vcap, peak), np.maximum(v0, v1))
+        tr = trapezoids(vj, blocks.length_mm, blocks.accel, vcap2, blocks.dwell_after_s,
+                        blocks.lead_s)
+    return tr
+
+
+def estimate_time_s(program, profile) -> float:
+    """Print time as the firmware model executes the program (no sampling), s."""
+    blocks = build_blocks(program, profile)
+    if blocks.length_mm.size == 0:
+        return blocks.lead_s
+    return _plan(blocks).duration_s
+
+
+def execute(program, profile) -> Trajectory:
+    """The commanded trajectory (X, Y, Z, E at every Ts) the firmware runs for ``program``."""
+    blocks = build_blocks(program, profile)
+    ts = profile.ts_s
+    if blocks.length_mm.size == 0:
+        k = int(math.ceil(blocks.lead_s / ts)) + 1
+        return Trajectory(ts_s=ts, pos_mm=np.zeros((k, 3)), e_mm=np.zeros(k))
+    tr = _plan(blocks)
+    s0 = np.concatenate([[0.0], np.cumsum(blocks.length_mm)])
+    s = sample(tr, s0, ts)
+    i = np.clip(np.searchsorted(s0, s, side="right") - 1, 0, blocks.length_mm.size - 1)
+    L = blocks.length_mm[i]
+    u = np.clip(np.where(L > 0, (s - s0[i]) / np.where(L > 0, L, 1), 0.0), 0.0, 1.0)
+    pos = blocks.start_mm[i] + (blocks.end_mm[i] - blocks.start_mm[i]) * u[:, None]
+    e = blocks.e0_mm[i] + blocks.de_mm[i] * u
+    return Trajectory(ts_s=ts, pos_mm=pos, e_mm=e)

@@ -1,0 +1,91 @@
+"""Firmware planner models against hand-computed trapezoids and junction speeds."""
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from gcode_feedopt.gcode.reader import read_program
+from gcode_feedopt.profile import load_profile
+from gcode_feedopt.vm.firmware import build_blocks, estimate_time_s, execute
+
+MARLIN = load_profile("ender3pro")  # accel 3000, JD 0.013, max feed x/y 500
+KLIPPER = dataclasses.replace(MARLIN, firmware=dataclasses.replace(
+    MARLIN.firmware, flavour="klipper", g91_relative_e=False, square_corner_velocity_mm_s=5.0,
+    minimum_cruise_ratio=0.0))
+
+
+def prog(text, flavour="marlin"):
+    return read_program(text.encode(), "t", flavour=flavour)
+
+
+def test_single_move_trapezoid():
+    # 100 mm at F6000 (100 mm/s), a = 3000: t = L/v + v/a
+    p = prog("G1 X0 Y0 F6000\nG1 X100 Y0\n")
+    assert estimate_time_s(p, MARLIN) == pytest.approx(100 / 100 + 100 / 3000, rel=1e-12)
+    # M204 in the file lowers it
+    p = prog("M204 P500 T500\nG1 X0 Y0 F6000\nG1 X100 Y0\n")
+    assert estimate_time_s(p, MARLIN) == pytest.approx(1.0 + 100 / 500, rel=1e-12)
+
+
+def test_m203_caps_feed_and_m201_caps_accel():
+    p = prog("M203 X50\nG1 X0 Y0 F6000\nG1 X100 Y0\n")
+    assert estimate_time_s(p, MARLIN) == pytest.approx(100 / 50 + 50 / 3000, rel=1e-12)
+    p = prog("M201 X1000\nG1 X0 Y0 F6000\nG1 X100 Y0\n")
+    assert estimate_time_s(p, MARLIN) == pytest.approx(1.0 + 100 / 1000, rel=1e-12)
+
+
+def test_junction_deviation_90_degrees():
+    p = prog("G1 X0 Y0 F6000\nG1 X50 Y0\nG1 X50 Y50\n")
+    b = build_blocks(p, MARLIN)
+    sd = math.sin(math.pi / 4)
+    vj = math.sqrt(3000 * 0.013 * sd / (1 - sd))
+    # two blocks, 50 mm each, rest -> 100 mm/s -> vj -> 100 -> rest
+    t_one = lambda v0, v1: (50 - (100 ** 2 - v0 ** 2) / 6000 - (100 ** 2 - v1 ** 2) / 6000) / 100 \
+        + (100 - v0) / 3000 + (100 - v1) / 3000
+    assert estimate_time_s(p, MARLIN) == pytest.approx(t_one(0, vj) + t_one(vj, 0), rel=1e-9)
+    assert b.turn_cos[0] == pytest.approx(0.0)
+
+
+def test_classic_jerk_from_the_file():
+    p = prog("M205 X8 Y8\nG1 X0 Y0 F6000\nG1 X50 Y0\nG1 X50 Y50\n")
+    b = build_blocks(p, MARLIN)
+    # 90° corner: each axis changes by v, so v = 8 mm/s
+    assert b.jerk_v[0] == pytest.approx(8.0)
+
+
+def test_klipper_square_corner_velocity():
+    # Klipper: a 90° corner runs at square_corner_velocity (when not limited by centripetal)
+    p = prog("G1 X0 Y0 F6000\nG1 X50 Y0\nG1 X50 Y50\n", "klipper")
+    tr = execute(p, KLIPPER)
+    v = np.linalg.norm(np.diff(tr.pos_mm[:, :2], axis=0), axis=1) / tr.ts_s
+    at_corner = np.argmin(np.linalg.norm(tr.pos_mm[:-1, :2] - [50, 0], axis=1))
+    assert v[at_corner - 1:at_corner + 2].min() == pytest.approx(5.0, abs=3000 * 0.002)
+
+
+def test_klipper_set_velocity_limit_in_file():
+    p = prog("SET_VELOCITY_LIMIT VELOCITY=50 ACCEL=1000\nG1 X0 Y0 F6000\nG1 X100 Y0\n", "klipper")
+    assert estimate_time_s(p, KLIPPER) == pytest.approx(100 / 50 + 50 / 1000, rel=1e-12)
+
+
+def test_klipper_minimum_cruise_ratio_slows_short_moves():
+    k2 = dataclasses.replace(KLIPPER, firmware=dataclasses.replace(KLIPPER.firmware,
+                                                                   minimum_cruise_ratio=0.5))
+    p = prog("G1 X0 Y0 F6000\nG1 X5 Y0\n", "klipper")
+    assert estimate_time_s(p, k2) > estimate_time_s(p, KLIPPER)
+
+
+def test_execute_ends_at_last_point_with_e_and_stops():
+    p = prog("M82\nG1 X0 Y0 F3000\nG1 X20 Y0 E1\nG1 E0.5 F1800\nG4 P200\nG2 X40 Y0 I10 J0 E2 F1200\n")
+    tr = execute(p, MARLIN)
+    np.testing.assert_allclose(tr.pos_mm[-1], [40, 0, 0], atol=1e-9)
+    assert tr.e_mm[-1] == pytest.approx(2.0)
+    assert tr.duration_s >= estimate_time_s(p, MARLIN) - 1e-9
+    # the dwell: the machine stands still for 0.2 s somewhere
+    still = np.all(np.abs(np.diff(tr.pos_mm, axis=0)) < 1e-12, axis=1) & (np.diff(tr.e_mm) == 0)
+    runs = np.diff(np.flatnonzero(np.diff(np.concatenate([[0], still.astype(int), [0]]))))[::2]
+    assert runs.max() * tr.ts_s >= 0.2 - 2 * tr.ts_s
+    # arcs are split into chords on the circle
+    assert np.all(np.abs(np.hypot(tr.pos_mm[tr.pos_mm[:, 0] > 20.5, 0] - 30,
+                                  tr.pos_mm[tr.pos_mm[:, 0] > 20.5, 1]) - 10) < 0.02)
