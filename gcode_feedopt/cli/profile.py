@@ -1,0 +1,129 @@
+"""``gcode-feedopt profile build|show|check`` — machine profiles."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import pathlib
+
+import click
+
+from ..profile import load_profile, save_profile
+from ..profile.io import frf_set_from_files
+from ..profile.schema import AxisModel
+
+
+@click.group("profile")
+def profile():
+    """Build, show and check machine profiles."""
+
+
+def _parse_build_args(args):
+    """``--frf-x A.csv B.csv ... --frf-y C.csv ... [--base P] [--name N] -o OUT`` (the file
+    lists run until the next option, as the issue's command line writes them)."""
+    opts = {"frf_x": [], "frf_y": [], "base": "ender3pro", "name": None, "output": None}
+    cur = None
+    it = iter(args)
+    for tok in it:
+        if tok in ("--frf-x", "--frf-y"):
+            cur = opts["frf_x"] if tok == "--frf-x" else opts["frf_y"]
+        elif tok in ("--base", "--name", "-o", "--output"):
+            key = {"--base": "base", "--name": "name", "-o": "output", "--output": "output"}[tok]
+            try:
+                opts[key] = next(it)
+            except StopIteration:
+                raise click.UsageError(f"{tok} needs a value") from None
+            cur = None
+        elif tok.startswith("-"):
+            raise click.UsageError(f"unknown option {tok}; see gcode-feedopt profile build --help")
+        elif cur is None:
+            raise click.UsageError(f"{tok}: a file must follow --frf-x or --frf-y")
+        else:
+            if not pathlib.Path(tok).is_file():
+                raise click.UsageError(f"{tok}: no such FRF file")
+            cur.append(tok)
+    if opts["output"] is None:
+        raise click.UsageError("give -o OUT.yaml")
+    return opts
+
+
+@profile.command("build", context_settings={"ignore_unknown_options": True})
+@click.argument("args", nargs=-1, type=click.UNPROCESSED)
+def build(args):
+    """Build a profile from measured FRFs, limits taken from the base profile.
+
+    \b
+    gcode-feedopt profile build --frf-x A.csv B.csv ... --frf-y C.csv ... [--base ender3pro]
+                                [--name NAME] -o plant.yaml
+    """
+    o = _parse_build_args(args)
+    frf_x, frf_y, base, name = o["frf_x"], o["frf_y"], o["base"], o["name"]
+    output = pathlib.Path(o["output"])
+    if not frf_x and not frf_y:
+        raise click.UsageError("give --frf-x and/or --frf-y files")
+    base_p = load_profile(base)
+    axes = dict(base_p.axes)
+    for axis, files in (("x", frf_x), ("y", frf_y)):
+        if files:
+            frf = frf_set_from_files(files)
+            axes[axis] = AxisModel(frf=frf, modes=(), provenance={
+                "kind": "measured", "files": [str(pathlib.Path(f).resolve()) for f in files],
+                "n_measurements": frf.n_measurements})
+    prov = dict(base_p.provenance)
+    prov["built_from"] = {"base": base_p.name, "frf_x": list(frf_x), "frf_y": list(frf_y)}
+    twin = dataclasses.replace(base_p.twin, priors={})  # priors of the base do not apply
+    new = dataclasses.replace(base_p, name=name or output.stem, axes=axes, provenance=prov,
+                              twin=twin, description=f"built from measured FRFs on {base_p.name} limits")
+    save_profile(new, output)
+    load_profile(output)  # round trip: what we wrote must load
+    click.echo(f"profile build: wrote {output}", err=True)
+
+
+def _summary(p) -> dict:
+    axes = {}
+    for a, ax in p.axes.items():
+        d = {"modes": [{"freq_hz": m.freq_hz, "damping": m.damping, "gain": m.gain}
+                       for m in ax.modes]}
+        if ax.frf is not None:
+            d["frf_measurements"] = ax.frf.n_measurements
+            d["frf_band_hz"] = [float(ax.frf.freq_hz[0]), float(ax.frf.freq_hz[-1])]
+        d["provenance"] = {k: v for k, v in ax.provenance.items() if k != "measurements"}
+        axes[a] = d
+    L = p.limits
+    return {"name": p.name, "description": p.description, "ts_s": p.ts_s,
+            "limits": dataclasses.asdict(L), "firmware": dataclasses.asdict(p.firmware),
+            "twin": {"n2": p.twin.n2, "n3": p.twin.n3, "sigma_eps_mm": p.twin.sigma_eps_mm,
+                     "coef_variance": p.twin.coef_variance, "n_taps": p.twin.n_taps,
+                     "priors": {a: {"learned_from": list(pr.learned_from)}
+                                for a, pr in p.twin.priors.items()}},
+            "axes": axes, "provenance": p.provenance, "source": p.source_path}
+
+
+@profile.command("show")
+@click.argument("name_or_path")
+@click.option("--json", "as_json", is_flag=True, help="Machine-readable output.")
+def show(name_or_path, as_json):
+    """Print limits, modes per axis and provenance of a profile."""
+    p = load_profile(name_or_path)
+    s = _summary(p)
+    if as_json:
+        click.echo(json.dumps(s, indent=2, default=str))
+        return
+    L = p.limits
+    click.echo(f"{p.name}: {p.description}")
+    click.echo(f"  Ts {p.ts_s * 1000:g} ms; V_max {L.vmax_mm_s:g} mm/s, A_max {L.amax_mm_s2:g} mm/s², "
+               f"tolerance {L.tolerance_mm:g} mm at {L.stringency:.0%}; firmware {p.firmware.flavour}")
+    for a, d in s["axes"].items():
+        modes = ", ".join(f"{m['freq_hz']:.1f} Hz ζ={m['damping']:.3f}" for m in d["modes"]) or "none fitted"
+        n = d.get("frf_measurements", 0)
+        click.echo(f"  {a}: {n} FRFs; modes {modes}; {d['provenance'].get('kind', '?')}")
+    for k, v in p.provenance.items():
+        click.echo(f"  provenance.{k}: {v}")
+
+
+@profile.command("check")
+@click.argument("name_or_path")
+def check(name_or_path):
+    """Validate a profile (exit 0 and 'ok', or the one-line error)."""
+    p = load_profile(name_or_path)
+    click.echo(f"{p.name}: ok")
