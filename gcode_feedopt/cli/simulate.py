@@ -135,10 +135,11 @@ def simulate(gcode, machine, seed, effects, log_path, report_path, tol_mm, conto
     wall = time.perf_counter() - t_start
     m = res.metrics
     if not quiet:
+        err = report_path == "-"  # keep stdout pure JSON then
         click.echo(f"{os.path.basename(gcode)} on {profile.name} (seed {seed}"
-                   + (", effects: " + " ".join(e.to_spec() for e in effects) if effects else "") + ")")
-        click.echo(m.summary())
-        click.echo(f"simulated in     {wall:12.3f} s ({m.cycle_time_s / wall:.0f}x faster than the print)")
+                   + (", effects: " + " ".join(e.to_spec() for e in effects) if effects else "") + ")", err=err)
+        click.echo(m.summary(), err=err)
+        click.echo(f"simulated in     {wall:12.3f} s ({m.cycle_time_s / wall:.0f}x faster than the print)", err=err)
     if report_path:
         report = {
             "file": os.fspath(gcode),
