@@ -54,6 +54,8 @@ def test_gamma_rms_within_fraction_hand_case():
     assert res.max_gamma_mm == pytest.approx(0.12)
     assert res.within_fraction == pytest.approx(3 / 5)
     assert res.max_contour_error_mm == pytest.approx(0.2)
+    # 95th percentile of (0, 0, 0.05, 0.1, 0.2) by linear interpolation: 0.1 + 0.8 * 0.1
+    assert res.p95_contour_error_mm == pytest.approx(0.18)
     assert res.cycle_time_s == pytest.approx(4 * TS)
     d = res.to_dict()
     for key in ("cycle_time_s", "rms_gamma_mm", "within_fraction", "max_contour_error_mm"):
