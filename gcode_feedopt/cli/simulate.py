@@ -40,7 +40,7 @@ class SimulationResult:
 
 
 def simulate_program(program, profile, *, seed: int = 0, effects=(), tol_mm: float | None = None,
-                     contour_on: str = "extrusion") -> SimulationResult:
+                     contour_on: str = "extrusion", nominal: bool = False) -> SimulationResult:
     """Execute a read Program on the virtual machine; no files are opened."""
     from ..vm import firmware
 
@@ -49,11 +49,12 @@ def simulate_program(program, profile, *, seed: int = 0, effects=(), tol_mm: flo
     trajectory = firmware.execute(program, profile)
     timings["firmware"] = time.perf_counter() - t0
     return simulate_trajectory(trajectory, profile, seed=seed, effects=effects, tol_mm=tol_mm,
-                               contour_on=contour_on, timings_s=timings)
+                               contour_on=contour_on, timings_s=timings, nominal=nominal)
 
 
 def simulate_trajectory(trajectory, profile, *, seed: int = 0, effects=(), tol_mm: float | None = None,
-                        contour_on: str = "extrusion", timings_s: dict | None = None) -> SimulationResult:
+                        contour_on: str = "extrusion", timings_s: dict | None = None,
+                        nominal: bool = False) -> SimulationResult:
     """Run a commanded trajectory through the seeded plant and evaluate it."""
     from ..vm import metrics
     from ..vm.plant import Plant
@@ -61,7 +62,7 @@ def simulate_trajectory(trajectory, profile, *, seed: int = 0, effects=(), tol_m
     timings = dict(timings_s or {})
     tol = float(profile.limits.tolerance_mm if tol_mm is None else tol_mm)
     t0 = time.perf_counter()
-    output = Plant(profile, seed=seed, effects=effects).simulate(trajectory)
+    output = Plant(profile, seed=seed, effects=effects, nominal=nominal).simulate(trajectory)
     timings["plant"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     result = metrics.evaluate(trajectory, output.actual_mm, tol, on=contour_on)
@@ -112,8 +113,10 @@ def _parse_effects(ctx, param, values):
               help="Contour tolerance E_max, mm [default: the profile's].")
 @click.option("--contour-on", type=click.Choice(CONTOUR_ON), default="extrusion", show_default=True,
               help="Samples the contour error is judged on: extruding moves, or all XY motion.")
+@click.option("--nominal", is_flag=True,
+              help="Use the mean response of the profile's FRFs instead of a seeded draw.")
 @click.option("--quiet", "-q", is_flag=True, help="Do not print the metrics.")
-def simulate(gcode, machine, seed, effects, log_path, report_path, tol_mm, contour_on, quiet):
+def simulate(gcode, machine, seed, effects, log_path, report_path, tol_mm, contour_on, nominal, quiet):
     """Run GCODE on the virtual machine: firmware model, servo plant with unknown effects;
     print cycle time, contour error and tolerance violation.
 
@@ -126,7 +129,8 @@ def simulate(gcode, machine, seed, effects, log_path, report_path, tol_mm, conto
 
     t_start = time.perf_counter()
     profile = load_profile(machine)
-    res = simulate_file(gcode, profile, seed=seed, effects=effects, tol_mm=tol_mm, contour_on=contour_on)
+    res = simulate_file(gcode, profile, seed=seed, effects=effects, tol_mm=tol_mm, contour_on=contour_on,
+                        nominal=nominal)
     if log_path:
         t0 = time.perf_counter()
         tr, out = res.trajectory, res.output
@@ -136,7 +140,7 @@ def simulate(gcode, machine, seed, effects, log_path, report_path, tol_mm, conto
     m = res.metrics
     if not quiet:
         err = report_path == "-"  # keep stdout pure JSON then
-        click.echo(f"{os.path.basename(gcode)} on {profile.name} (seed {seed}"
+        click.echo(f"{os.path.basename(gcode)} on {profile.name} ({'nominal' if nominal else 'drawn'} plant, seed {seed}"
                    + (", effects: " + " ".join(e.to_spec() for e in effects) if effects else "") + ")", err=err)
         click.echo(m.summary(), err=err)
         click.echo(f"simulated in     {wall:12.3f} s ({m.cycle_time_s / wall:.0f}x faster than the print)", err=err)
@@ -145,6 +149,7 @@ def simulate(gcode, machine, seed, effects, log_path, report_path, tol_mm, conto
             "file": os.fspath(gcode),
             "machine": profile.name,
             "seed": seed,
+            "plant": "nominal" if nominal else "draw",
             "effects": [e.to_dict() for e in effects],
             "ts_s": res.trajectory.ts_s,
             **m.to_dict(),

@@ -150,18 +150,24 @@ class Plant:
     """
 
     def __init__(self, profile, seed: int = 0, effects: Iterable[fx.Effect] = (), *,
-                 n_taps: int | None = None, unit_dc_gain: bool = True):
-        from ..twin.frf import draw_impulse_responses  # the twin owns FRF -> impulse response
+                 n_taps: int | None = None, unit_dc_gain: bool = True, nominal: bool = False):
+        """``nominal``: use the mean impulse response of the FRF distribution instead of a
+        draw (a machine without the known uncertainty; the seed then only drives the noise)."""
+        from ..twin.frf import draw_impulse_responses, impulse_response  # FRF -> h is the twin's
 
         seq = np.random.SeedSequence(seed)
         draw_seq, noise_seq = seq.spawn(2)
         axis_seqs = draw_seq.spawn(len(PLANT_AXES))
         n = int(n_taps if n_taps is not None else profile.twin.n_taps)
+        method = profile.twin.coef_variance
         impulse = {}
         for ax, s in zip(PLANT_AXES, axis_seqs):
             model = profile.axes[ax]
-            h = np.asarray(draw_impulse_responses(model.frf, profile.ts_s, n,
-                                                  np.random.default_rng(s), 1))[0]
+            if nominal:
+                h = np.asarray(impulse_response(model.frf, profile.ts_s, n, method=method).mean)
+            else:
+                h = np.asarray(draw_impulse_responses(model.frf, profile.ts_s, n,
+                                                      np.random.default_rng(s), 1, method=method))[0]
             impulse[ax] = h
         # resonance_shift moves the peak of |H| of *this draw* (not the profile's nominal mode
         # list): the frequency a diagnosis can measure in the log lands on frequency_hz

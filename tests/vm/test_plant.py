@@ -143,3 +143,13 @@ def test_resonance_shift_moves_the_measured_peak_of_a_profile_draw():
     out = plant.simulate(Trajectory(ts_s=prof.ts_s, pos_mm=cmd, e_mm=np.zeros(K)))
     # the step response's derivative is h: its |H| peak is where the effect put it (FFT bin 0.03 Hz)
     assert fx.dominant_mode_hz(np.diff(out.actual_mm[:, 0], prepend=0.0), prof.ts_s) == pytest.approx(45.0, abs=0.1)
+
+
+def test_nominal_plant_is_the_twin_mean_response():
+    from gcode_feedopt.profile import load_profile
+    from gcode_feedopt.twin.frf import impulse_response
+
+    prof = load_profile("ender3pro")
+    plant = Plant(prof, seed=9, nominal=True)
+    mean = impulse_response(prof.axes["x"].frf, prof.ts_s, prof.twin.n_taps).mean
+    np.testing.assert_allclose(plant.impulse["x"], mean / mean.sum(), atol=1e-12)
