@@ -18,7 +18,13 @@ One seeded draw per run and axis: the paper (Sec. 5) re-samples h at every t; a 
 is one machine of the population the FRFs describe, which is what a log from a real machine
 shows and what the closed loop learns. ``seed`` fixes the draw (x and y from independent child
 streams of ``numpy.random.SeedSequence(seed)``) and the sensor noise (a third stream), so
-adding an effect never changes the drawn dynamics.
+adding an effect never changes the drawn dynamics. ``nominal=True`` uses the twin's mean
+response instead (``twin.frf.impulse_response(...).mean``).
+
+Caveat (measured, see README "Virtual machine"): the FRF coefficients are independent per
+frequency bin, so a single draw has a noise tail that does not decay over the n_taps (|h| of a
+few 1e-3 at 1 s for ``ender3pro``); it acts as a random lag of a few ms and dominates the
+contour error of a drawn plant after fast travels.
 
 DC gain: by default each drawn h is scaled to sum(h) = 1 (``unit_dc_gain``). A stepper or
 servo axis has no steady-state position error, while an FRF estimated from accelerometers
