@@ -42,6 +42,24 @@ from ..profile import load_profile
 def optimize(gcode, output, machine, method, tolerance, stringency, vmax, amax, mode,
              use_slicer_feed, trajectory, report_path, dry_run, force, quiet):
     """Re-time GCODE for MACHINE and write it (in place without -o)."""
+    from ..hosts import prusaslicer
+
+    in_slicer = prusaslicer.running_in_slicer()
+    try:
+        _run(gcode, output, machine, method, tolerance, stringency, vmax, amax, mode,
+             use_slicer_feed, trajectory, report_path, dry_run, force, quiet, in_slicer)
+    except FeedOptError as exc:
+        if in_slicer:  # stderr is lost on Windows: leave the reason beside the G-code
+            log = prusaslicer.write_failure_log(gcode, str(exc))
+            if log is not None:
+                exc.args = (f"{exc} (also written to {log})",)
+        raise
+
+
+def _run(gcode, output, machine, method, tolerance, stringency, vmax, amax, mode,
+         use_slicer_feed, trajectory, report_path, dry_run, force, quiet, in_slicer):
+    from ..hosts import prusaslicer
+
     profile = load_profile(machine)
     opts = Options(method=method, tolerance_mm=tolerance, stringency=stringency, vmax_mm_s=vmax,
                    amax_mm_s2=amax, mode=mode, use_slicer_feed=use_slicer_feed, force=force,
@@ -49,6 +67,11 @@ def optimize(gcode, output, machine, method, tolerance, stringency, vmax, amax, 
     if not gcode.is_file():
         raise FeedOptError(f"{gcode}: no such file; check the path")
     rep = optimize_file(gcode, output, profile, opts)
+    if in_slicer:
+        rep.notes.extend(prusaslicer.limit_disagreements(profile))
+        name = prusaslicer.output_name()
+        if name:
+            rep.extra["slicer_output_name"] = name
     if report_path:
         pathlib.Path(report_path).write_text(rep.to_json())
     if not quiet:

@@ -1,0 +1,5 @@
+"""``python -m gcode_feedopt`` = the ``gcode-feedopt`` command."""
+
+from .cli import main
+
+main()

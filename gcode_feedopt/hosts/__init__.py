@@ -1,0 +1,1 @@
+"""Where users run the tool: slicer post-processing hooks and print-farm folders."""
