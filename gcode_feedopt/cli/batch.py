@@ -1,0 +1,50 @@
+"""``gcode-feedopt batch DIR [-o OUTDIR] [-j N] --machine M`` — a folder of jobs."""
+
+from __future__ import annotations
+
+import os
+import pathlib
+import sys
+
+import click
+
+from ..pipeline import METHODS
+
+
+@click.command("batch")
+@click.argument("folder", type=click.Path(exists=True, file_okay=False, path_type=pathlib.Path))
+@click.option("-o", "--outdir", type=click.Path(file_okay=False, path_type=pathlib.Path),
+              help="Write results here (default: edit the files in place).")
+@click.option("-j", "--jobs", type=click.IntRange(1, 256), default=os.cpu_count() or 1,
+              show_default=True, help="Parallel processes.")
+@click.option("--machine", "-m", required=True, help="Built-in profile or profile .yaml.")
+@click.option("--method", type=click.Choice(METHODS), default="kinematic", show_default=True)
+@click.option("--vmax", type=float, help="Override the feed limit, mm/s.")
+@click.option("--amax", type=float, help="Override the X/Y acceleration limit, mm/s².")
+@click.option("--use-slicer-feed", is_flag=True, help="Never faster than the slicer's F.")
+@click.option("--force", is_flag=True, help="Process files that were processed before.")
+def batch(folder, outdir, jobs, machine, method, vmax, amax, use_slicer_feed, force):
+    """Optimize every G-code file in FOLDER; print a summary table; exit 1 if any failed."""
+    from ..hosts.batch import find_jobs, run_batch, table
+    from ..profile import load_profile
+
+    load_profile(machine)  # a bad machine fails once, here, not once per file
+    opts = {"method": method, "vmax_mm_s": vmax, "amax_mm_s2": amax,
+            "use_slicer_feed": use_slicer_feed, "force": force}
+    total = len(find_jobs(folder))
+    done = [0]
+    tty = sys.stderr.isatty()
+
+    def progress(r):
+        done[0] += 1
+        if tty:
+            click.echo(f"\r[{done[0]}/{total}] {r.file[:50]:50s}", err=True, nl=False)
+
+    results = run_batch(folder, outdir, machine, opts, jobs, progress)
+    if tty:
+        click.echo("", err=True)
+    click.echo(table(results))
+    failed = [r for r in results if r.status == "failed"]
+    if failed:
+        click.echo(f"batch: {len(failed)} of {len(results)} failed", err=True)
+        sys.exit(1)

@@ -1,0 +1,56 @@
+"""Batch over a folder: the shared files plus a corrupt one that fails alone."""
+
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+
+from click.testing import CliRunner
+
+from gcode_feedopt.cli import cli
+
+from ..conftest import GCODE_DIR, REPO
+
+
+def test_batch_table_and_corrupt_file_fails_alone(tmp_path):
+    src = tmp_path / "jobs"
+    src.mkdir()
+    for name in ("cura-4.8_ender3_square-tower.gcode",):
+        shutil.copy(GCODE_DIR / name, src / name)
+    shutil.copy(REPO / "sample_gcode" / "butterfly.gcode", src / "butterfly.gcode")
+    (src / "corrupt.gcode").write_bytes(b"GCDE\x00\x01binary")
+    out = tmp_path / "out"
+    r = CliRunner().invoke(cli, ["batch", str(src), "-o", str(out), "-j", "2", "--machine",
+                                 "ender3pro"])
+    assert r.exit_code == 1
+    lines = r.output.splitlines()
+    assert lines[0].split()[:5] == ["file", "before", "after", "saved", "status"]
+    status = {ln.split()[0]: ln for ln in lines[1:]}
+    assert "failed" in status["corrupt.gcode"] and "bgcode" in status["corrupt.gcode"]
+    assert status["butterfly.gcode"].rstrip().endswith("ok")
+    assert (out / "butterfly.gcode").exists() and not (out / "corrupt.gcode").exists()
+    # a second run skips what is done
+    r = CliRunner().invoke(cli, ["batch", str(src), "-o", str(out), "-j", "2", "--machine",
+                                 "ender3pro"])
+    assert "skipped" in r.output
+
+
+def test_ctrl_c_leaves_no_half_written_file(tmp_path):
+    src = tmp_path / "jobs"
+    src.mkdir()
+    shutil.copy(GCODE_DIR / "cura-4.11_ender3_3dbenchy.gcode", src / "a.gcode")
+    shutil.copy(GCODE_DIR / "prusaslicer-2.6.1_mini_3dbenchy.gcode", src / "b.gcode")
+    before = {p.name: p.read_bytes() for p in src.iterdir()}
+    p = subprocess.Popen([sys.executable, "-m", "gcode_feedopt", "batch", str(src), "-j", "2",
+                          "--machine", "ender3pro"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                         start_new_session=True)
+    time.sleep(4.0)
+    os.killpg(p.pid, signal.SIGINT)
+    p.wait(timeout=60)
+    names = sorted(x.name for x in src.iterdir())
+    assert names == ["a.gcode", "b.gcode"]  # no temp left behind
+    for x in src.iterdir():  # each file is either untouched or completely processed
+        data = x.read_bytes()
+        assert data == before[x.name] or b"; processed by gcode-feedopt" in data[:4096]
