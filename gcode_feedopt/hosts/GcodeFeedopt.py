@@ -1,0 +1,91 @@
+# Cura post-processing script for gcode-feedopt.
+#
+# Put this file in Cura's scripts folder (Help > Show Configuration Folder, then
+# scripts/; e.g. ~/.local/share/cura/<version>/scripts/ on Linux,
+# %APPDATA%\cura\<version>\scripts\ on Windows), restart Cura, and add "Feedrate optimization
+# (gcode-feedopt)" under Extensions > Post Processing > Modify G-Code. It runs the installed
+# `gcode-feedopt` command on the joined layers and hands Cura back the same list of layers.
+# On any failure it shows a message and returns the G-code unchanged.
+
+import os
+import subprocess
+import tempfile
+
+from ..Script import Script
+
+try:
+    from UM.Logger import Logger
+except ImportError:  # pragma: no cover - outside Cura
+    Logger = None
+
+_MARK = ";GCODE_FEEDOPT_LAYER_END"
+
+
+class GcodeFeedopt(Script):
+    """Re-time the print with gcode-feedopt (the class is named as the file, as Cura needs)."""
+
+    def getSettingDataString(self):
+        return """{
+            "name": "Feedrate optimization (gcode-feedopt)",
+            "key": "GcodeFeedopt",
+            "metadata": {},
+            "version": 2,
+            "settings": {
+                "machine": {"label": "Machine profile", "description": "Built-in profile name (ender3pro, nomad3) or the path of a profile .yaml", "type": "str", "default_value": "ender3pro"},
+                "tolerance": {"label": "Tolerance", "description": "Contour-error tolerance E_max", "unit": "mm", "type": "float", "default_value": 0.1, "minimum_value": "0.001"},
+                "stringency": {"label": "Stringency", "description": "Fraction of samples that must stay within the tolerance", "type": "float", "default_value": 0.95, "minimum_value": "0.5", "maximum_value": "0.9999"},
+                "method": {"label": "Method", "description": "Planner", "type": "enum", "options": {"kinematic": "Kinematic limits", "pidd": "Digital twin (PIDD)", "conservative": "Conservative", "pb": "Physics only", "dd": "Data only"}, "default_value": "kinematic"},
+                "command": {"label": "gcode-feedopt command", "description": "Full path of the gcode-feedopt executable if it is not on PATH", "type": "str", "default_value": "gcode-feedopt"}
+            }
+        }"""
+
+    def _fail(self, reason):
+        text = "gcode-feedopt: " + reason + " (G-code left unchanged)"
+        if Logger is not None:
+            Logger.log("e", text)
+        try:
+            from UM.Message import Message
+            Message(text, title="Feedrate optimization").show()
+        except Exception:
+            pass
+
+    def execute(self, data):
+        if not data:
+            return data
+        parts = []
+        for chunk in data:
+            parts.append(chunk if chunk.endswith("\n") else chunk + "\n")
+            parts.append(_MARK + "\n")
+        fd, path = tempfile.mkstemp(suffix=".gcode", prefix="cura-feedopt-")
+        try:
+            with os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
+                fh.write("".join(parts))
+            cmd = [self.getSettingValueByKey("command") or "gcode-feedopt", path,
+                   "--machine", str(self.getSettingValueByKey("machine")),
+                   "--tolerance", str(self.getSettingValueByKey("tolerance")),
+                   "--stringency", str(self.getSettingValueByKey("stringency")),
+                   "--method", str(self.getSettingValueByKey("method")), "--quiet"]
+            try:
+                res = subprocess.run(cmd, capture_output=True, text=True, timeout=3600)
+            except (OSError, subprocess.SubprocessError) as exc:
+                self._fail("could not run " + cmd[0] + ": " + str(exc))
+                return data
+            if res.returncode != 0:
+                lines = (res.stderr or res.stdout or "exit code %d" % res.returncode).strip().splitlines()
+                self._fail(lines[-1] if lines else "failed")
+                return data
+            with open(path, encoding="utf-8", newline="") as fh:
+                text = fh.read()
+        finally:
+            try:
+                os.unlink(path)
+            except OSError:
+                pass
+        pieces = text.split(_MARK + "\n")
+        if len(pieces) != len(data) + 1 or pieces[-1].strip():
+            self._fail("the result does not split back into Cura's %d layers" % len(data))
+            return data
+        out = []
+        for chunk, new in zip(data, pieces[:-1]):
+            out.append(new if chunk.endswith("\n") else new[:-1])
+        return out
