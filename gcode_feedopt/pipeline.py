@@ -33,6 +33,7 @@ class Options:
     force: bool = False
     dry_run: bool = False
     trajectory: str | None = None
+    plot: str | None = None
 
 
 def read_for(path, profile):
@@ -119,6 +120,12 @@ def optimize_file(in_path, out_path, profile, opts: Options) -> Report:
             with open(tmp, "wb") as fh:
                 write_trajectory_csv(fh, sched, path)
         wall["save"] = time.perf_counter() - t0
+    if opts.plot:
+        from .plot import plot_run
+
+        plot_run(path, sched, opts.plot, title=f"{in_path.name}: {sched.method} on {profile.name}",
+                 tolerance_mm=opts.tolerance_mm or profile.limits.tolerance_mm,
+                 predicted_error_mm=sched.info.get("predicted_bound_mm"))
     info = sched.info
     rep = Report(
         input=str(in_path), output=None if opts.dry_run else str(out_path),

@@ -36,18 +36,20 @@ from ..profile import load_profile
               help="Also write the planned trajectory t,x,y,z,e (s, mm), one row per Ts.")
 @click.option("--report", "report_path", type=click.Path(dir_okay=False), metavar="JSON",
               help="Write the run's figures as JSON.")
+@click.option("--plot", "plot_path", type=click.Path(dir_okay=False), metavar="PNG",
+              help="Write a PNG: XY path coloured by speed, feed along the print.")
 @click.option("--dry-run", is_flag=True, help="Plan and report, write nothing.")
 @click.option("--force", is_flag=True, help="Process a file that was processed before.")
 @click.option("--quiet", "-q", is_flag=True, help="No summary on stderr.")
 def optimize(gcode, output, machine, method, tolerance, stringency, vmax, amax, mode,
-             use_slicer_feed, trajectory, report_path, dry_run, force, quiet):
+             use_slicer_feed, trajectory, report_path, plot_path, dry_run, force, quiet):
     """Re-time GCODE for MACHINE and write it (in place without -o)."""
     from ..hosts import prusaslicer
 
     in_slicer = prusaslicer.running_in_slicer()
     try:
         _run(gcode, output, machine, method, tolerance, stringency, vmax, amax, mode,
-             use_slicer_feed, trajectory, report_path, dry_run, force, quiet, in_slicer)
+             use_slicer_feed, trajectory, report_path, plot_path, dry_run, force, quiet, in_slicer)
     except FeedOptError as exc:
         if in_slicer:  # stderr is lost on Windows: leave the reason beside the G-code
             log = prusaslicer.write_failure_log(gcode, str(exc))
@@ -57,13 +59,13 @@ def optimize(gcode, output, machine, method, tolerance, stringency, vmax, amax, 
 
 
 def _run(gcode, output, machine, method, tolerance, stringency, vmax, amax, mode,
-         use_slicer_feed, trajectory, report_path, dry_run, force, quiet, in_slicer):
+         use_slicer_feed, trajectory, report_path, plot_path, dry_run, force, quiet, in_slicer):
     from ..hosts import prusaslicer
 
     profile = load_profile(machine)
     opts = Options(method=method, tolerance_mm=tolerance, stringency=stringency, vmax_mm_s=vmax,
                    amax_mm_s2=amax, mode=mode, use_slicer_feed=use_slicer_feed, force=force,
-                   dry_run=dry_run, trajectory=trajectory)
+                   dry_run=dry_run, trajectory=trajectory, plot=plot_path)
     if not gcode.is_file():
         raise FeedOptError(f"{gcode}: no such file; check the path")
     rep = optimize_file(gcode, output, profile, opts)

@@ -54,3 +54,15 @@ def test_ctrl_c_leaves_no_half_written_file(tmp_path):
     for x in src.iterdir():  # each file is either untouched or completely processed
         data = x.read_bytes()
         assert data == before[x.name] or b"; processed by gcode-feedopt" in data[:4096]
+
+
+def test_plot_and_dry_run(tmp_path):
+    src = REPO / "sample_gcode" / "butterfly.gcode"
+    before = src.read_bytes()
+    png = tmp_path / "run.png"
+    r = CliRunner().invoke(cli, [str(src), "--machine", "ender3pro", "--dry-run", "--plot",
+                                 str(png), "--report", str(tmp_path / "r.json")])
+    assert r.exit_code == 0, r.output
+    assert src.read_bytes() == before  # dry run writes nothing
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 20_000
+    assert "dry run" in r.output
