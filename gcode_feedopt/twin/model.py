@@ -14,6 +14,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.linalg.blas import dger
 
 from .features import factor_series, feature_matrix, n_features, physics_prior, xhat
 from .frf import ImpulseResponse, impulse_response
@@ -82,6 +83,8 @@ class AxisTwin:
         e = (np.asarray(x_meas, float) - ref) - xm if measured else np.zeros(T)
         M, V = feature_matrix(xm, xv, e, n2, n3)
         first_e = 2 + n2
+        if measured and learn and Y.shape[0] > 0:
+            return self._run_joint(M, Y, x_meas - ref, lag_x, lag_e, maxlag, ref)
         for t in range(T):
             row = M[t]
             if not measured:
@@ -109,6 +112,62 @@ class AxisTwin:
                 e[t] = m_t - xm[t]
         self.mu, self.cov = mu, 0.5 * (cov + cov.T)
         return mean + ref, np.sqrt(np.maximum(var, 0.0))
+
+    def _run_joint(self, M, Y, x_dev, lag_x, lag_e, maxlag, ref):
+        """Learning with the plant draw as a latent variable.
+
+        The known uncertainty is one fixed machine of the population: x̂(t) = E x̂(t) + Y_tᵀ z
+        with z ~ N(0, I_r) the same for the whole log. The paper keeps ψ random at every
+        sample, so its predictive variance never drops below the population's spread even
+        once the log has shown which machine this is (98–99 % coverage of a 95 % interval).
+        Here z is learned jointly with β by an extended Kalman update of θ = [β; z] on the
+        bilinear model x = βᵀ(ψ̄ + G z) + ε (G maps z to the feature perturbations: +Y for the
+        x̂ lags, −Y for the error lags), linearised at the current means."""
+        T, d = M.shape
+        r = Y.shape[0]
+        first_e = 2 + self.n2
+        Yp = np.hstack([np.zeros((r, maxlag)), Y])
+        lags = np.arange(maxlag + 1)
+        theta = np.concatenate([self.mu, np.zeros(r)])
+        C = np.zeros((d + r, d + r), order="F")
+        C[:d, :d] = self.cov
+        C[d:, d:] = np.eye(r)
+        s2 = self.sigma2
+        sign = np.zeros((d, maxlag + 1))  # feature j <- lag column with sign
+        for j, lag in enumerate(lag_x):
+            sign[1 + j, lag] = 1.0
+        for j, lag in enumerate(lag_e):
+            sign[first_e + j, lag] = -1.0
+        mean = np.empty(T)
+        var = np.empty(T)
+        J = np.empty(d + r)
+        for t in range(T):
+            Ylag = Yp[:, t + maxlag - lags]  # (r, maxlag+1)
+            mz = theta[d:]
+            psi_c = M[t] + sign @ (Ylag.T @ mz)
+            mb = theta[:d]
+            q = Ylag @ (sign.T @ mb)
+            J[:d] = psi_c
+            J[d:] = q
+            m_t = float(psi_c @ mb)
+            CJ = C @ J
+            v_t = float(J @ CJ) + s2
+            mean[t] = m_t
+            var[t] = v_t
+            k = CJ / v_t
+            theta = theta + k * (x_dev[t] - m_t)
+            # rank-one downdate in place (BLAS dger): C -= k CJᵀ, no (d+r)² temporary
+            C = dger(-1.0, k, CJ, a=C, overwrite_a=1)
+        self.mu = theta[:d]
+        self.cov = 0.5 * (C[:d, :d] + C[:d, :d].T)
+        return mean + ref, np.sqrt(np.maximum(var, 0.0))
+
+
+def _signed(mu, lag_x, lag_e, maxlag, first_e):
+    c = np.zeros(maxlag + 1)
+    np.add.at(c, lag_x, mu[1:first_e])
+    np.add.at(c, lag_e, -mu[first_e:])
+    return c
 
 
 def axis_twin(profile, axis: str, *, method: str = "pidd") -> AxisTwin:

@@ -50,35 +50,22 @@ def test_95_interval_coverage_without_learning(butterfly, axis):
 
 
 @pytest.mark.parametrize("axis", ["x", "y"])
-def test_95_interval_with_learning_is_never_overconfident(butterfly, axis):
-    """Learning from the log keeps the interval safe (≥ 93 %). It is conservative (98–99 %):
-    the paper's model keeps the feature (FRF) uncertainty for ever, even once the log has
-    shown which machine of the population this is — see the strict test below."""
+def test_95_interval_coverage_with_learning(butterfly, axis):
+    """Learning online (one sample behind) from the measured log: the twin learns which
+    machine of the population this is (the plant draw as a latent variable, jointly with the
+    regression weights), so its interval narrows to the noise and stays calibrated."""
     prof, pos = butterfly
     x_cmd = pos[:, "xy".index(axis)]
     rng = np.random.default_rng(21)
-    H = draw_impulse_responses(prof.axes[axis].frf, prof.ts_s, prof.twin.n_taps, rng, 10)
-    inside = []
+    H = draw_impulse_responses(prof.axes[axis].frf, prof.ts_s, prof.twin.n_taps, rng, 12)
+    inside, widths = [], []
     for h in H:
         x_meas = simulate(prof, axis, x_cmd, h, rng)
         tw = axis_twin(prof, axis)
         mean, std = tw.run(x_cmd, x_meas, learn=True)
         inside.append(np.abs(x_meas - mean) <= Z95 * std)
+        widths.append(np.median(std[-1000:]))
     frac = np.mean(inside)
-    assert 0.93 <= frac <= 0.995, frac
-
-
-@pytest.mark.xfail(strict=True, reason="with learning the interval is 98-99 %: the feature "
-                   "uncertainty of one fixed plant is never learned away (see docs/twin.md)")
-def test_95_interval_with_learning_strict(butterfly):
-    prof, pos = butterfly
-    x_cmd = pos[:, 0]
-    rng = np.random.default_rng(21)
-    H = draw_impulse_responses(prof.axes["x"].frf, prof.ts_s, prof.twin.n_taps, rng, 10)
-    inside = []
-    for h in H:
-        x_meas = simulate(prof, "x", x_cmd, h, rng)
-        tw = axis_twin(prof, "x")
-        mean, std = tw.run(x_cmd, x_meas, learn=True)
-        inside.append(np.abs(x_meas - mean) <= Z95 * std)
-    assert 0.93 <= np.mean(inside) <= 0.97
+    assert 0.93 <= frac <= 0.97, frac
+    # and it has learned: the late interval is the sensor noise, not the population's spread
+    assert np.median(widths) < 1.5 * prof.twin.sigma_eps_mm
