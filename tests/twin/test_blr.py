@@ -145,3 +145,19 @@ def test_rls_with_forgetting_tracks_a_change():
         target = b1 if k < 300 else b2
         beta, P = rls_update(beta, P, psi, float(target @ psi), 0.95)
     np.testing.assert_allclose(beta, b2, atol=1e-4)  # old data weighs 0.95^300
+
+
+def test_appendix_a_prior_fits_the_measured_machines():
+    from gcode_feedopt.profile import load_profile
+    from gcode_feedopt.twin.features import physics_prior
+    from gcode_feedopt.twin.prior import init_prior
+
+    prof = load_profile("ender3pro")
+    frf = prof.axes["y"].frf
+    mu, cov, rec = init_prior(frf.freq_hz, frf.response, prof.ts_s, 300, 10, 30, 0.01)
+    assert rec["converged"]
+    mu0, cov0 = physics_prior(10, 30)
+    # the x̂ weights still sum to ~1 (the DC gain), and the spread is not degenerate
+    assert abs(mu[1:12].sum() - 1.0) < 0.05
+    assert cov[1, 1] > 0 and np.all(np.isfinite(cov))
+    assert not np.allclose(mu, mu0)
