@@ -121,9 +121,8 @@ class Path:
         return np.where(self.kind[i] != SEG_LINE, 1.0 / np.where(r > 0, r, np.inf), 0.0)
 
     def end_tangents(self) -> tuple[np.ndarray, np.ndarray]:
-        """(N, 3) unit tangents at the start and at the end of every segment."""
-        t_start = self.tangent(self.s0_mm[:-1] + 0.0)
-        # evaluate at the very end of each segment (u = 1) without stepping into the next
+        """(N, 3) unit tangents at the start and at the end of every segment (evaluated at
+        u = 0 and u = 1 of each segment, never stepping into a neighbour)."""
         d = self.end_mm - self.start_mm
         arc = self.kind != SEG_LINE
         t_end = d.copy()
@@ -136,7 +135,6 @@ class Path:
             dz = d[arc, 2]
             t_end[arc] = np.stack([-r * np.sin(th1) * sw, r * np.cos(th1) * sw, dz], axis=1)
             t_beg[arc] = np.stack([-r * np.sin(th0) * sw, r * np.cos(th0) * sw, dz], axis=1)
-        del t_start
 
         def unit(v):
             n = np.linalg.norm(v, axis=1, keepdims=True)

@@ -219,7 +219,7 @@ class _Emitter:
     def __init__(self, program: Program):
         self.program = program
 
-    def pieces_lines(self, mv, seg_geom, pieces, ending: bytes, comment: bytes) -> list[bytes]:
+    def pieces_lines(self, mv, pieces, ending: bytes, comment: bytes) -> list[bytes]:
         words = mv.words
         axes_present = [L for L in "XYZ" if L in words]
         has_e = "E" in words
@@ -351,7 +351,7 @@ def write(program: Program, path: Path, schedule: Schedule, profile, *, mode: st
                 text = raw.decode("latin-1")
                 semi = text.find(";")
                 comment = raw[semi:].rstrip(b"\r\n") if semi >= 0 else b""
-                lines = emitter.pieces_lines(mv, None, pieces, _ending(raw) or first_ending, comment)
+                lines = emitter.pieces_lines(mv, pieces, _ending(raw) or first_ending, comment)
                 out.extend(lines)
                 tags.extend([(T_NEW, mi)] * len(lines))
                 moves_changed += 1
