@@ -1,0 +1,104 @@
+"""The main command end to end through click: report keys, dry run, in place, second run,
+sampled mode, trajectory CSV, unavailable methods. Uses the small bundled butterfly."""
+
+from __future__ import annotations
+
+import json
+import pathlib
+import shutil
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from gcode_feedopt.cli import cli
+
+REPO = pathlib.Path(__file__).resolve().parents[1]
+SAMPLE = REPO / "sample_gcode" / "butterfly.gcode"
+
+
+@pytest.fixture()
+def src(tmp_path):
+    p = tmp_path / "in.gcode"
+    shutil.copyfile(SAMPLE, p)
+    return p
+
+
+def _run(args):
+    return CliRunner().invoke(cli, [str(a) for a in args])
+
+
+def test_report_has_the_promised_keys_and_output_is_not_slower(src, tmp_path):
+    out, rep = tmp_path / "out.gcode", tmp_path / "r.json"
+    res = _run([src, "-o", out, "--machine", "ender3pro", "--report", rep, "-q"])
+    assert res.exit_code == 0, res.output
+    d = json.loads(rep.read_text())
+    for key in ("input_time_s", "output_time_s", "moves", "method", "tolerance_mm", "stringency",
+                "moves_changed", "lines_written", "time_source"):
+        assert key in d, key
+    assert d["method"] == "kinematic"
+    assert d["moves"] > 1000
+    assert d["output_time_s"] <= d["input_time_s"] * 1.001
+    assert src.read_bytes() == SAMPLE.read_bytes()
+    assert b"; processed by gcode-feedopt" in out.read_bytes()
+
+
+def test_dry_run_writes_nothing(src, tmp_path):
+    before = (src.read_bytes(), src.stat().st_mtime_ns)
+    res = _run([src, "--machine", "ender3pro", "--dry-run", "-q"])
+    assert res.exit_code == 0, res.output
+    assert (src.read_bytes(), src.stat().st_mtime_ns) == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["in.gcode"]
+
+
+def test_in_place_then_second_run_refused_then_forced(src):
+    res = _run(["--machine", "ender3pro", src])  # PrusaSlicer passes the path last
+    assert res.exit_code == 0, res.output
+    once = src.read_bytes()
+    assert once != SAMPLE.read_bytes()
+    res = _run(["--machine", "ender3pro", src])
+    assert res.exit_code != 0
+    assert "already processed" in res.output and "--force" in res.output
+    assert src.read_bytes() == once
+    res = _run(["--machine", "ender3pro", "--force", "-q", src])
+    assert res.exit_code == 0, res.output
+    # the first pass's ident line is kept byte for byte; the forced pass adds its own
+    assert src.read_bytes().count(b"; processed by gcode-feedopt") == 2
+
+
+def test_sampled_mode_states_ts_and_trajectory_csv_rows_per_ts(src, tmp_path):
+    out, csv = tmp_path / "s.gcode", tmp_path / "t.csv"
+    res = _run([src, "-o", out, "--machine", "ender3pro", "--mode", "sampled",
+                "--trajectory", csv, "-q"])
+    assert res.exit_code == 0, res.output
+    assert b"Ts = 2 ms" in out.read_bytes()
+    text = csv.read_text().splitlines()
+    assert text[0] == "t,x,y,z,e"
+    t = np.loadtxt(csv, delimiter=",", skiprows=1)[:, 0]
+    assert np.allclose(np.diff(t), 0.002, atol=1e-6)
+
+
+@pytest.mark.parametrize("method", ["conservative", "pb", "dd", "pidd", "oracle"])
+def test_twin_methods_without_optimizer_fail_in_one_line(src, method):
+    try:
+        import gcode_feedopt.optimize  # noqa: F401
+    except ImportError:
+        pass
+    else:
+        pytest.skip("the optimizer is in this build")
+    before = src.read_bytes()
+    res = _run([src, "--machine", "ender3pro", "--method", method])
+    assert res.exit_code != 0
+    assert f"method '{method}' is not available" in res.output
+    assert src.read_bytes() == before
+
+
+def test_vmax_override_slows_the_output(src, tmp_path):
+    reps = []
+    for extra in ([], ["--vmax", "20"]):
+        rep = tmp_path / f"r{len(reps)}.json"
+        res = _run([src, "-o", tmp_path / "o.gcode", "--machine", "ender3pro", "--report", rep,
+                    "-q", *extra])
+        assert res.exit_code == 0, res.output
+        reps.append(json.loads(rep.read_text()))
+    assert reps[1]["output_time_s"] > reps[0]["output_time_s"] * 1.05
