@@ -40,7 +40,7 @@ CASES = {
     "g91 moves": (b"G1 X0 Y0 F3000\nG91\nG1 X10 E1\nG1 Y10 E1\nG90\n", OK, None),
     "m83 with g92": (b"M83\nG92 E0\nG1 X0 Y0 F3000\nG1 X10 E0.5\nG92 E0\nG1 Y10 E0.5\n", OK, None),
     "arcs with r": (b"G1 X0 Y0 F600\nG2 X20 Y0 R10 E1\nG3 X0 Y0 R-10 E2\n", OK, None),
-    "line numbers with checksums": (b"N1 G1 X0 Y0 F600*39\nN2 G1 X10 Y0*12\n" + GOOD_TAIL, OK, None),
+    "line numbers with checksums": (b"N1 G1 X0 Y0 F600*120\nN2 G1 X10 Y0*26\n" + GOOD_TAIL, OK, None),
     "unknown codes": (b"G1 X0 F600\nM9999 Q1\nG12345\nB1\n" + GOOD_TAIL, OK, None),
     "paren comments": (b"(header)\nG1 X0 (go) Y0 F600\n" + GOOD_TAIL, OK, None),
     "tool change": (GOOD_TAIL + b"T1\nG1 X0 Y0 E5 F600\n", OK, None),
