@@ -1,7 +1,7 @@
 """``gcode-feedopt identify`` — a machine profile from measurements a user can make.
 
-Supported now: Klipper resonance spectra (``freq,psd_x,...``; magnitude only) and FRF CSVs
-(``freq_hz,real,imag``). The file kind is recognised from its header.
+Supported now: Klipper resonance spectra (``freq,psd_x,...``; magnitude only), FRF CSVs
+(``freq_hz,real,imag``) and UFF dataset 58. The file kind is recognised from its header.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import numpy as np
 
 from ..errors import ProfileError
 from ..identify.modal import fit_modes_complex
-from ..identify.readers import detect_kind, read_frf, read_spectra
+from ..identify.readers import detect_kind, read_frf, read_spectra, read_uff58
 from ..identify.spectra import FREQ_SPREAD, GRID_HZ, ZETA_SPREAD, fit_spectrum, widened_frf_set
 from ..profile import load_profile, save_profile
 from ..profile.schema import AxisModel, FRFSet, Mode
@@ -37,12 +37,15 @@ def _identify_axis(axis: str, files, n_modes: int):
             if fit.rms_residual > POOR_FIT_RMS:
                 click.echo(f"warning: {f}: poor fit (log-magnitude RMS residual "
                            f"{fit.rms_residual:.2f} > {POOR_FIT_RMS}); check the data", err=True)
+            fits.append(fit)
         else:
-            freq, h = read_frf(f)
-            fit = fit_modes_complex(freq, h, n_modes=n_modes)
-            rows.append(np.interp(GRID_HZ, freq, h.real) + 1j * np.interp(GRID_HZ, freq, h.imag))
-            labels.append(pathlib.Path(f).name)
-        fits.append(fit)
+            records = read_uff58(f) if kind == "uff" else [(*read_frf(f), "")]
+            for k, (freq, h, rid) in enumerate(records):
+                fits.append(fit_modes_complex(freq, h, n_modes=n_modes))
+                rows.append(np.interp(GRID_HZ, freq, h.real)
+                            + 1j * np.interp(GRID_HZ, freq, h.imag))
+                labels.append(f"{pathlib.Path(f).name}:{k + 1}" if kind == "uff"
+                              else pathlib.Path(f).name)
     # modes of the axis: mean over the files
     fn = np.mean([ft.freq_hz for ft in fits], axis=0)
     zeta = np.mean([ft.damping for ft in fits], axis=0)

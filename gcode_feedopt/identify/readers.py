@@ -2,7 +2,8 @@
 
 Kinds, recognised from the header line:
 - ``frf``: CSV ``freq_hz,real,imag`` (complex FRF, commanded -> actual position);
-- ``spectra``: Klipper resonance spectra ``freq,psd_x,psd_y,psd_z,psd_xyz``.
+- ``spectra``: Klipper resonance spectra ``freq,psd_x,psd_y,psd_z,psd_xyz``;
+- ``uff``: Universal File Format, dataset 58 (function records), read with pyuff.
 """
 
 from __future__ import annotations
@@ -21,12 +22,14 @@ def detect_kind(path) -> str:
         head = path.open("r", errors="replace").readline().strip().lower().replace(" ", "")
     except OSError as exc:
         raise ProfileError(f"{path}: cannot read ({exc.strerror}); check the path") from None
+    if head == "-1":
+        return "uff"
     if head.startswith("freq_hz,real,imag"):
         return "frf"
     if head.startswith("freq,psd_x"):
         return "spectra"
     raise ProfileError(f"{path}:1: unknown file kind (header {head[:40]!r}); expected "
-                       f"'freq_hz,real,imag' (FRF) or 'freq,psd_x,...' (Klipper spectra)")
+                       f"'freq_hz,real,imag' (FRF), 'freq,psd_x,...' (Klipper spectra) or UFF ('    -1')")
 
 
 def read_spectra(path, axis: str) -> tuple[np.ndarray, np.ndarray]:
@@ -43,3 +46,20 @@ def read_frf(path) -> tuple[np.ndarray, np.ndarray]:
     """FRF CSV -> (freq_hz (K,), response (K,) complex)."""
     data = np.genfromtxt(path, delimiter=",", names=True)
     return np.asarray(data["freq_hz"], float), data["real"] + 1j * data["imag"]
+
+
+def read_uff58(path) -> list[tuple[np.ndarray, np.ndarray, str]]:
+    """Every dataset-58 record of a UFF file -> [(freq_hz (K,), response (K,) complex, id)]."""
+    import pyuff  # imported here: only this reader needs it
+
+    try:
+        sets = pyuff.UFF(str(path)).read_sets()
+    except Exception as exc:  # pyuff raises bare Exceptions on malformed files
+        raise ProfileError(f"{path}: not a readable UFF file ({exc}); export dataset 58") from None
+    if isinstance(sets, dict):
+        sets = [sets]
+    out = [(np.asarray(s["x"], float), np.asarray(s["data"], complex), str(s.get("id1", "")))
+           for s in sets if s.get("type") == 58]
+    if not out:
+        raise ProfileError(f"{path}: no dataset 58 (FRF) in the UFF file; export FRFs as 58")
+    return out

@@ -50,3 +50,30 @@ def test_cli_from_frf_csv_recovers_modes(tmp_path):
     assert m.freq_hz == pytest.approx(47.0, rel=0.02)
     assert m.damping == pytest.approx(0.09, rel=0.2)
     assert prof.axes["x"].frf.n_measurements == 3
+
+
+def test_cli_from_uff58_recovers_modes(tmp_path):
+    import pyuff
+
+    rng = np.random.default_rng(4)
+    f = np.arange(0.0, 200.0, 0.5)
+    sets = []
+    for _ in range(2):
+        h = modal_response(f, [36.0, 71.0], [0.1, 0.05], [0.8, 0.2])
+        h = h + 0.01 * (rng.standard_normal(f.size) + 1j * rng.standard_normal(f.size))
+        sets.append(pyuff.prepare_58(func_type=4, rsp_node=1, rsp_dir=1, ref_node=1, ref_dir=1,
+                                     data=h, x=f, id1="frf", abscissa_spacing=1,
+                                     abscissa_spec_data_type=18, ordinate_spec_data_type=12,
+                                     orddenom_spec_data_type=13))
+    p = tmp_path / "y.uff"
+    pyuff.UFF(str(p)).write_sets(sets, mode="overwrite")
+    assert detect_kind(p) == "uff"
+    out = tmp_path / "prof.yaml"
+    res = CliRunner().invoke(cli, ["identify", "--y", str(p), "--modes", "2", "-o", str(out)])
+    assert res.exit_code == 0, res.output
+    prof = load_profile(out)
+    fn = [m.freq_hz for m in prof.axes["y"].modes]
+    zeta = [m.damping for m in prof.axes["y"].modes]
+    np.testing.assert_allclose(fn, [36.0, 71.0], rtol=0.02)
+    np.testing.assert_allclose(zeta, [0.1, 0.05], rtol=0.2)
+    assert prof.axes["y"].frf.n_measurements == 2
