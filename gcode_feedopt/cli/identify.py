@@ -15,7 +15,7 @@ import numpy as np
 from ..errors import ProfileError
 from ..identify.modal import fit_modes_complex
 from ..identify.readers import detect_kind, read_frf, read_spectra, read_uff58
-from ..identify.spectra import FREQ_SPREAD, GRID_HZ, ZETA_SPREAD, fit_spectrum, widened_frf_set
+from ..identify.spectra import BAND_HZ, FREQ_SPREAD, GRID_HZ, ZETA_SPREAD, fit_spectrum, widened_frf_set
 from ..profile import load_profile, save_profile
 from ..profile.schema import AxisModel, FRFSet, Mode
 
@@ -24,13 +24,16 @@ POOR_FIT_RMS = 0.5
 
 
 def _identify_axis(axis: str, files, n_modes: int):
-    rows, labels, fits, kinds = [], [], [], []
+    rows, labels, fits, kinds, curves = [], [], [], [], []
     for f in files:
         kind = detect_kind(f)
         kinds.append(kind)
         if kind == "spectra":
             freq, psd = read_spectra(f, axis)
             fit = fit_spectrum(freq, psd, n_modes=n_modes)
+            m = (freq >= BAND_HZ[0]) & (freq <= BAND_HZ[1]) & (psd > 0)
+            curves.append((pathlib.Path(f).name, freq[m], np.sqrt(psd[m]) / freq[m] / fit.scale,
+                           np.abs(fit.response(freq[m]))))
             rows.extend(widened_frf_set(fit))
             labels.extend(f"{pathlib.Path(f).name}:{v}" for v in
                           ("nominal", "f+", "f-", "zeta+", "zeta-"))
@@ -42,6 +45,8 @@ def _identify_axis(axis: str, files, n_modes: int):
             records = read_uff58(f) if kind == "uff" else [(*read_frf(f), "")]
             for k, (freq, h, rid) in enumerate(records):
                 fits.append(fit_modes_complex(freq, h, n_modes=n_modes))
+                curves.append((f"{pathlib.Path(f).name}:{k + 1}", freq, np.abs(h),
+                               np.abs(fits[-1].response(freq))))
                 rows.append(np.interp(GRID_HZ, freq, h.real)
                             + 1j * np.interp(GRID_HZ, freq, h.imag))
                 labels.append(f"{pathlib.Path(f).name}:{k + 1}" if kind == "uff"
@@ -60,7 +65,7 @@ def _identify_axis(axis: str, files, n_modes: int):
         prov["phase"] = (f"minimum-phase modal model; FRF set widened by f x (1 +/- {FREQ_SPREAD})"
                          f" and damping x (1 +/- {ZETA_SPREAD})")
     return AxisModel(frf=FRFSet(GRID_HZ, np.array(rows), tuple(labels)), modes=modes,
-                     provenance=prov), fits
+                     provenance=prov), curves
 
 
 @click.command("identify")
@@ -73,7 +78,9 @@ def _identify_axis(axis: str, files, n_modes: int):
 @click.option("--modes", "n_modes", type=click.IntRange(1, 3), default=2, show_default=True,
               help="number of modes fitted per axis")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False))
-def identify(x_files, y_files, base, n_modes, output):
+@click.option("--plot", "plot_path", type=click.Path(dir_okay=False), default=None,
+              help="write a PNG of the fitted |H| against the data")
+def identify(x_files, y_files, base, n_modes, output, plot_path):
     """Build a profile from FRF CSVs or Klipper resonance spectra.
 
     \b
@@ -83,9 +90,10 @@ def identify(x_files, y_files, base, n_modes, output):
         raise click.UsageError("give at least one --x or --y file")
     base_p = load_profile(base)
     axes = dict(base_p.axes)
+    panels = {}
     for axis, files in (("x", x_files), ("y", y_files)):
         if files:
-            axes[axis], _ = _identify_axis(axis, files, n_modes)
+            axes[axis], panels[axis] = _identify_axis(axis, files, n_modes)
             m = ", ".join(f"{md.freq_hz:.1f} Hz zeta {md.damping:.3f}" for md in axes[axis].modes)
             click.echo(f"{axis}: {m}")
     prov = dict(base_p.provenance)
@@ -99,3 +107,8 @@ def identify(x_files, y_files, base, n_modes, output):
     except OSError as exc:
         raise ProfileError(f"{out}: cannot write ({exc.strerror})") from None
     click.echo(f"wrote {out}")
+    if plot_path:
+        from ..identify.identify_plot import plot_fits
+
+        plot_fits(plot_path, panels)
+        click.echo(f"wrote {plot_path}")

@@ -43,8 +43,11 @@ def test_cli_from_frf_csv_recovers_modes(tmp_path):
                    comments="")
         files += ["--x", str(p)]
     out = tmp_path / "prof.yaml"
-    res = CliRunner().invoke(cli, ["identify", *files, "--modes", "1", "-o", str(out)])
+    png = tmp_path / "fit.png"
+    res = CliRunner().invoke(cli, ["identify", *files, "--modes", "1", "-o", str(out),
+                                   "--plot", str(png)])
     assert res.exit_code == 0, res.output
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     prof = load_profile(out)
     m = prof.axes["x"].modes[0]
     assert m.freq_hz == pytest.approx(47.0, rel=0.02)
