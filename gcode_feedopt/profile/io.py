@@ -50,6 +50,12 @@ class _Section:
         self.used.add(key)
         if key not in self.data:
             if default is ...:
+                # a missing key is most often a misspelt one: name the look-alike
+                close = difflib.get_close_matches(key, [str(k) for k in self.data
+                                                        if k not in self.used], n=1)
+                if close:
+                    raise self._err(key, f"missing, but '{self._key(close[0])}' is present; "
+                                         f"did you mean '{key}'? rename it")
                 raise self._err(key, "missing; add it (see README, 'Machine profiles')")
             return default
         return self.data[key]

@@ -1,0 +1,94 @@
+"""Profile round trip, error messages and the published ranges of the built-in modes."""
+
+import os
+
+import numpy as np
+import pytest
+import yaml
+
+from gcode_feedopt.errors import ProfileError
+from gcode_feedopt.profile import load_profile, save_profile
+
+
+def _same(a, b):
+    assert a.limits == b.limits and a.firmware == b.firmware and a.ts_s == b.ts_s
+    for ax in "xy":
+        fa, fb = a.axes[ax].frf, b.axes[ax].frf
+        np.testing.assert_array_equal(fa.freq_hz, fb.freq_hz)
+        np.testing.assert_array_equal(fa.response, fb.response)  # exact: repr-precision floats
+
+
+@pytest.mark.parametrize("name", ["ender3pro", "nomad3"])
+def test_save_load_round_trip_is_exact(tmp_path, name):
+    p = load_profile(name)
+    q = load_profile(save_profile(p, tmp_path / "a" / f"{name}.yaml"))
+    _same(p, q)
+    r = load_profile(save_profile(q, tmp_path / "b" / f"{name}.yaml"))
+    _same(q, r)
+    assert (tmp_path / "a" / f"{name}.yaml").read_text() == (tmp_path / "b" / f"{name}.yaml").read_text()
+
+
+def test_unknown_key_message_says_did_you_mean_and_file(tmp_path):
+    d = yaml.safe_load(open(load_profile("nomad3").source_path))
+    d["limits"]["tolerence_mm"] = d["limits"].pop("tolerance_mm")
+    d["axes"] = {"x": {}, "y": {}}
+    p = tmp_path / "typo.yaml"
+    p.write_text(yaml.safe_dump(d))
+    with pytest.raises(ProfileError) as exc:
+        load_profile(p)
+    msg = str(exc.value)
+    assert "typo.yaml" in msg and "tolerence_mm" in msg and "did you mean 'tolerance_mm'" in msg
+    assert "\n" not in msg
+
+
+def test_unknown_builtin_name_suggests():
+    with pytest.raises(ProfileError, match="did you mean 'ender3pro'"):
+        load_profile("ender3p")
+
+
+def test_builtins_load_from_any_cwd(tmp_path):
+    old = os.getcwd()
+    os.chdir(tmp_path)
+    try:
+        p = load_profile("ender3pro")
+    finally:
+        os.chdir(old)
+    assert os.path.isabs(p.source_path) and p.axes["x"].frf.n_measurements == 9
+
+
+def _half_power_damping(f_hz, mag):
+    """Peak frequency and damping ratio from the -3 dB bandwidth of |H| (ζ ≈ Δf / 2 f0)."""
+    k = int(np.argmax(mag))
+    half = mag[k] / np.sqrt(2)
+    lo = k
+    while lo > 0 and mag[lo] > half:
+        lo -= 1
+    hi = k
+    while hi < len(mag) - 1 and mag[hi] > half:
+        hi += 1
+    return f_hz[k], (f_hz[hi] - f_hz[lo]) / (2 * f_hz[k])
+
+
+@pytest.mark.parametrize("axis, lo_hz, hi_hz", [("x", 30.0, 95.0), ("y", 34.0, 44.0)])
+def test_ender3pro_peaks_in_published_ranges(axis, lo_hz, hi_hz):
+    # Published: bed (Y) 36–42 Hz, X 30–95 Hz by toolhead mass; the softened large-amplitude
+    # FRFs may sit a few % below 36 Hz, hence the 34 Hz floor for Y.
+    p = load_profile("ender3pro")
+    frf = p.axes[axis].frf
+    for h in frf.response:
+        f0, zeta = _half_power_damping(frf.freq_hz, np.abs(h))
+        assert lo_hz <= f0 <= hi_hz
+        if axis == "y":
+            # one dominant mode: the -3 dB width reads ζ (a base-excited peak over-reads it a
+            # little); 0.05–0.2 brackets the published 0.07–0.15. X has two close modes of
+            # nearly equal gain whose -3 dB band spans both, so its ζ is checked on the modes.
+            assert 0.05 <= zeta <= 0.2
+    for m in p.axes[axis].modes:
+        assert 0.07 <= m.damping <= 0.15
+    assert lo_hz <= p.axes[axis].modes[0].freq_hz <= hi_hz
+
+
+def test_ender3pro_modes_soften_with_amplitude():
+    frf = load_profile("ender3pro").axes["y"].frf
+    peaks = frf.freq_hz[np.argmax(np.abs(frf.response), axis=1)].reshape(3, 3)  # amplitude × repeat
+    assert peaks[0].mean() > peaks[2].mean()
