@@ -110,11 +110,14 @@ def _unpack(p, m):
     return np.exp(p[:m]), np.exp(p[m:2 * m]), p[2 * m:3 * m], p[3 * m]
 
 
-def fit_modes_complex(freq_hz, response, n_modes: int = 1, weight=None) -> ModalFit:
+def fit_modes_complex(freq_hz, response, n_modes: int = 1, weight=None,
+                      max_delay_s: float = 0.0) -> ModalFit:
     """Fit ``n_modes`` modes + DC to a complex FRF ``response`` (K,) at ``freq_hz`` (K,).
 
     ``weight`` (K,) optional (e.g. coherence). Residuals are relative to max|H| so the
-    fit is scale free. Returns a ModalFit with scale 1.
+    fit is scale free. ``max_delay_s`` > 0 also fits a pure delay |tau| <= max_delay_s
+    (H_data = H_modal * exp(-j w tau)), absorbing a residual alignment error of a few
+    samples; the delay is not part of the returned modes. Returns a ModalFit with scale 1.
     """
     response = np.asarray(response, complex)
     freq_hz = _check(freq_hz, response, n_modes)
@@ -130,15 +133,17 @@ def fit_modes_complex(freq_hz, response, n_modes: int = 1, weight=None) -> Modal
     best = None
     for zmul in (1.0, 0.5, 2.0):
         p0 = np.concatenate([np.log(fn0), np.log(np.clip(z0 * zmul, ZETA_MIN * 1.01, ZETA_MAX * 0.99)),
-                             g0, [0.0]])
+                             g0, [0.0, 0.0]])
+        dmax = max(max_delay_s, 1e-6)  # a non-empty box; 1 us is negligible
         lo = np.concatenate([np.log(np.full(n_modes, f[0] * 0.5)), np.full(n_modes, np.log(ZETA_MIN)),
-                             np.full(n_modes, -np.inf), [-np.inf]])
+                             np.full(n_modes, -np.inf), [-np.inf, -dmax]])
         hi = np.concatenate([np.log(np.full(n_modes, f[-1] * 2)), np.full(n_modes, np.log(ZETA_MAX)),
-                             np.full(n_modes, np.inf), [np.inf]])
+                             np.full(n_modes, np.inf), [np.inf, dmax]])
 
         def resid(p):
             fn, z, g, d = _unpack(p, n_modes)
-            e = (modal_response(f, fn, z, g, d) - h) * w / scale
+            rot = np.exp(-2j * np.pi * f * p[-1])
+            e = (modal_response(f, fn, z, g, d) * rot - h) * w / scale
             return np.concatenate([e.real, e.imag])
 
         sol = least_squares(resid, np.clip(p0, lo + 1e-9, hi - 1e-9), bounds=(lo, hi),
