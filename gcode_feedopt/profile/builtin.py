@@ -27,6 +27,7 @@ Run ``python -m gcode_feedopt.profile.builtin [OUTDIR]`` to regenerate profiles/
 from __future__ import annotations
 
 import copy
+import dataclasses
 import pathlib
 import sys
 
@@ -125,6 +126,7 @@ def ender3pro() -> MachineProfile:
                         "115200-baud serial carries ~11.5 kB/s, ~35 bytes per G1 line.",
             "frf": "modelled (no measured FRF set of this machine is public); see axes.*.provenance",
             "twin": "n2 10, n3 30, sigma_eps 0.01 mm as in Kim & Okwudire Sec. 6.1",
+            "priors": PRIORS_NOTE,
             "generator": "python -m gcode_feedopt.profile.builtin",
         })
 
@@ -157,31 +159,55 @@ def nomad3() -> MachineProfile:
                         "the real Nomad 3 runs Grbl, which plans the same way",
             "frf": "modelled (no measured FRF set of this machine is public); see axes.*.provenance",
             "twin": "n2 3, n3 10, sigma_eps 0.01 mm as in Kim & Okwudire Sec. 5",
+            "priors": PRIORS_NOTE,
             "generator": "python -m gcode_feedopt.profile.builtin",
         })
 
 
 BUILTINS = {"ender3pro": ender3pro, "nomad3": nomad3}
 
+#: Why the shipped built-ins carry no learned prior: the twin learns the plant draw as a latent
+#: variable, so a prior fitted to the same FRF spread would count it twice (docs/twin.md §6).
+PRIORS_NOTE = ("not learned (absent on purpose): the twin starts from its physics prior and "
+               "learns the plant draw as a latent variable; an Appendix-A MLE prior fitted to "
+               "the same FRF spread would count it twice (docs/twin.md). "
+               "'python -m gcode_feedopt.profile.builtin --with-priors' stores one")
 
-def write_builtins(outdir) -> list[pathlib.Path]:
+
+def with_learned_priors(prof: MachineProfile) -> MachineProfile:
+    """The profile with (μ_β, Σ_β) per axis by the twin's Appendix-A MLE and a record of it."""
+    from ..twin.prior import init_prior
+    from .schema import Prior
+
+    T = prof.twin
+    priors = {}
+    for ax, model in prof.axes.items():
+        mu, cov, record = init_prior(model.frf.freq_hz, model.frf.response, prof.ts_s, T.n_taps,
+                                     T.n2, T.n3, T.sigma_eps_mm, method=T.coef_variance)
+        record = dict(record, frf=f"{prof.name} axis {ax}: {model.frf.n_measurements} FRFs",
+                      function="gcode_feedopt.twin.prior.init_prior")
+        priors[ax] = Prior(mu=np.asarray(mu, float), cov=np.asarray(cov, float),
+                           learned_from=(record,))
+    prov = dict(prof.provenance, priors="learned by python -m gcode_feedopt.profile.builtin "
+                                        "--with-priors (see twin.priors.*.learned_from)")
+    return dataclasses.replace(prof, twin=dataclasses.replace(T, priors=priors), provenance=prov)
+
+
+def write_builtins(outdir, learn_priors: bool = False) -> list[pathlib.Path]:
     from .io import save_profile
 
     outdir = pathlib.Path(outdir)
     written = []
     for name, make in BUILTINS.items():
         prof = make()
-        try:  # the learned prior (Appendix A), when the twin can compute it
-            from ..twin.prior import prior_for_profile
-        except ImportError:
-            prior_for_profile = None
-        if prior_for_profile is not None:
-            prof = prior_for_profile(prof)
+        if learn_priors:
+            prof = with_learned_priors(prof)
         written.append(save_profile(prof, outdir / f"{name}.yaml"))
     return written
 
 
 if __name__ == "__main__":
-    out = sys.argv[1] if len(sys.argv) > 1 else pathlib.Path(__file__).resolve().parents[2] / "profiles"
-    for p in write_builtins(out):
+    args = [a for a in sys.argv[1:] if a != "--with-priors"]
+    out = args[0] if args else pathlib.Path(__file__).resolve().parents[2] / "profiles"
+    for p in write_builtins(out, learn_priors="--with-priors" in sys.argv[1:]):
         print(p)

@@ -92,3 +92,21 @@ def test_ender3pro_modes_soften_with_amplitude():
     frf = load_profile("ender3pro").axes["y"].frf
     peaks = frf.freq_hz[np.argmax(np.abs(frf.response), axis=1)].reshape(3, 3)  # amplitude × repeat
     assert peaks[0].mean() > peaks[2].mean()
+
+
+def test_regeneration_matches_shipped_files_to_1e12(tmp_path):
+    from gcode_feedopt.profile.builtin import write_builtins
+
+    for path in write_builtins(tmp_path):
+        a, b = load_profile(path), load_profile(path.stem)
+        for ax in "xy":
+            np.testing.assert_allclose(a.axes[ax].frf.response, b.axes[ax].frf.response,
+                                       rtol=0, atol=1e-12)
+            np.testing.assert_allclose(a.axes[ax].frf.freq_hz, b.axes[ax].frf.freq_hz,
+                                       rtol=0, atol=1e-12)
+        assert a.limits == b.limits and a.firmware == b.firmware and a.provenance == b.provenance
+
+
+def test_builtins_say_priors_are_not_learned():
+    p = load_profile("ender3pro")
+    assert p.twin.priors == {} and p.provenance["priors"].startswith("not learned")
