@@ -9,7 +9,7 @@ import pathlib
 import click
 
 from ..profile import load_profile, save_profile
-from ..profile.io import frf_set_from_files
+from ..profile.frf_io import frf_set_from_files
 from ..profile.schema import AxisModel
 
 
