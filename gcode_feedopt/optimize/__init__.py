@@ -1,0 +1,5 @@
+"""Twin-driven receding-window feedrate optimizer (paper Section 4, Appendix C).
+
+window.py: the window problem (pure); mpc.py: the receding-window driver; predictors.py:
+what predicts the actual position over a horizon (known FIR plant / the twin).
+"""

@@ -1,0 +1,411 @@
+"""Receding-window driver (paper Sec. 4 "model predictive control", with the additions of
+issue 5): plan a horizon, commit its first ``n_window`` samples, move on.
+
+Horizon of every window = ``n_window`` committed samples + ``n_brake`` samples in which the
+plan must come to rest + ``n_hold`` samples held at rest. So
+- the vibration that outlives the committed window (and the braking) is predicted and
+  constrained (prediction horizon longer than the window);
+- every accepted plan ends at standstill within the known path (terminal condition): the
+  rest of an accepted horizon is always a valid continuation, which is the *fallback* when a
+  later window is infeasible or fails verification (it is reported in ``info``);
+- the path is re-linearised about each solution until the plan moves by less than
+  ``conv_tol_mm`` (or ``max_iter``), then the plan is verified on the exact (non-linearised)
+  path with the predictor; a plan that fails verification is not committed.
+If even the first window at rest is infeasible (the predicted error alone exceeds the
+tolerance, e.g. an un-learned disturbance), the window is solved with the chance constraint
+made elastic (violation penalised ``ELASTIC_WEIGHT`` times more than any progress can gain)
+and reported as ``relaxed``.
+
+Predictors (see methods.py) give, for the horizon commands, the predicted actual XY position
+(affine: mean at a nominal command plus its Jacobian) and its std.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+
+from . import window as win
+
+#: Elastic chance constraint: weight of 1 mm of violation relative to the progress objective
+#: (≤ n per window in scaled units); large enough that slack is used only when unavoidable.
+ELASTIC_WEIGHT = 1e5
+#: Verification slack on the chance constraint (linearisation residue accepted), mm per mm of
+#: tolerance.
+VERIFY_REL = 0.02
+#: Verification slack on the acceleration limits (relative).
+VERIFY_ACC_REL = 0.01
+#: The LP uses this fraction of A_max: the tangent linearisation misses part of the
+#: centripetal term while the plan moves from s̄, and verification allows VERIFY_ACC_REL.
+LP_ACC_MARGIN = 0.995
+#: Trust region of the sequential LP: the tangent linearisation may deviate from the path by
+#: this fraction of the tolerance at the initial radius; radius bounds, mm.
+TRUST_POS_FRAC = 0.25
+TRUST_MIN_MM = 0.02
+TRUST_MAX_MM = 10.0
+#: The trust radius grows at most to this multiple of its initial value within a window.
+TRUST_GROWTH_CAP = 8.0
+#: Step fractions tried back towards the verified plan when a linearised step fails
+#: verification.
+LINE_SEARCH = (0.5, 0.25)
+
+
+class Predictor(Protocol):
+    def predict(self, k0: int, cmd_h: np.ndarray):
+        """For horizon commands cmd_h (n, 2) starting at global sample k0 (all earlier
+        commands committed): mean (2, n) predicted actual XY, jac (2, n, n) d mean/d cmd
+        per axis, std (2, n) mm."""
+
+    def commit(self, k0: int, cmd: np.ndarray) -> None:
+        """Samples k0 … k0+len(cmd)−1 are committed with XY commands cmd (m, 2)."""
+
+
+@dataclass(frozen=True)
+class MpcSettings:
+    """Knobs of the receding window (defaults: the paper's printer settings, n_w = 30)."""
+
+    n_window: int = 30
+    n_brake: int | None = None  # None: enough to stop from V_max at A_max, plus 2
+    n_hold: int = 20
+    max_iter: int = 10
+    conv_tol_mm: float = 2e-3
+    solver: str = "highs"
+    jmax_mm_s3: float | None = None
+
+
+@dataclass
+class MpcResult:
+    s_mm: np.ndarray
+    info: dict = field(default_factory=dict)
+
+
+class Geometry(Protocol):
+    def position(self, s_mm) -> np.ndarray: ...
+    def tangent(self, s_mm) -> np.ndarray: ...
+
+
+def _normals(tan_xy: np.ndarray) -> np.ndarray:
+    nrm = np.linalg.norm(tan_xy, axis=1, keepdims=True)
+    t = tan_xy / np.where(nrm > 1e-12, nrm, 1.0)
+    out = np.column_stack([-t[:, 1], t[:, 0]])
+    out[nrm[:, 0] <= 1e-12] = 0.0
+    return out
+
+
+def _contour(normal, cmd, mean, std):
+    """Predicted contour error mean and std (n,) (paper Eqs. 6, 21)."""
+    err = cmd.T - mean  # (2, n)
+    mu = normal[:, 0] * err[0] + normal[:, 1] * err[1]
+    sig = np.sqrt((normal[:, 0] * std[0]) ** 2 + (normal[:, 1] * std[1]) ** 2)
+    return mu, sig
+
+
+class MpcPlanner:
+    """Stateful driver over one path (pieces between exact stops are planned in order)."""
+
+    def __init__(self, geom: Geometry, predictor: Predictor, *, ts_s: float, vmax_mm_s: float,
+                 amax_mm_s2, tol_mm: float, z: float, settings: MpcSettings = MpcSettings(),
+                 axis_vmax_mm_s=None, on_commit=None):
+        self.geom = geom
+        self.pred = predictor
+        self.ts = float(ts_s)
+        self.vmax = float(vmax_mm_s)
+        self.amax = np.broadcast_to(np.asarray(amax_mm_s2, float), (2,)).copy()
+        self.tol = float(tol_mm)
+        self.z = float(z)
+        self.st = settings
+        self.axis_vmax = axis_vmax_mm_s
+        self.on_commit = on_commit
+        amin = float(np.min(self.amax))
+        self.n_brake = settings.n_brake if settings.n_brake is not None else \
+            int(math.ceil(self.vmax / (amin * self.ts))) + 2
+        self.n = settings.n_window + self.n_brake + settings.n_hold
+        self.s_hist: list[float] = []
+        self.cmd_hist: list[np.ndarray] = []
+        self.osqp = win.OsqpWindowSolver()
+        self.stats = {"windows": 0, "iterations": 0, "solver_s": 0.0, "status": {},
+                      "fallback_windows": [], "relaxed_windows": [], "unconverged": 0,
+                      "pred_mean_mm": [], "pred_std_mm": [], "pred_xy_mm": [], "solve_times_s": []}
+        self._prev: np.ndarray | None = None  # previous accepted horizon s (n,)
+
+    # -- helpers -------------------------------------------------------------------------
+    def _count(self, key):
+        self.stats["status"][key] = self.stats["status"].get(key, 0) + 1
+
+    def _vcap(self, s_bar):
+        """(n,) feed cap per sample from V_max and the per-axis feed limits on the tangent."""
+        cap = np.full(s_bar.size, self.vmax)
+        if self.axis_vmax is not None:
+            t = np.abs(self.geom.tangent(s_bar))
+            lim = np.array([self.axis_vmax.get(a, np.inf) for a in ("x", "y", "z")])
+            with np.errstate(divide="ignore"):
+                cap = np.minimum(cap, np.where(t > 1e-12, lim[None, :] / t, np.inf).min(axis=1))
+        return cap
+
+    def _past_cmd(self):
+        if not self.cmd_hist:
+            raise RuntimeError("no committed sample")
+        last = self.cmd_hist[-3:]
+        while len(last) < 3:
+            last = [last[0]] + last
+        return np.array(last)
+
+    def _window_data(self, s_start, s_bar, s_max, trust=None):
+        n = self.n
+        nw, nb = self.st.n_window, self.n_brake
+        pos = self.geom.position(s_bar)[:, :2]
+        tan = self.geom.tangent(s_bar)[:, :2]
+        normal = _normals(tan)
+        k0 = len(self.s_hist)
+        mean, jac, std = self.pred.predict(k0, pos)
+        err_bar = pos.T - mean
+        err_jac = np.eye(n)[None, :, :] - jac
+        sig = np.sqrt((normal[:, 0] * std[0]) ** 2 + (normal[:, 1] * std[1]) ** 2)
+        ds_max = self._vcap(s_bar) * self.ts
+        ds_max[nw + nb:] = 0.0
+        jmax = None if self.st.jmax_mm_s3 is None else np.full(2, self.st.jmax_mm_s3)
+        return win.WindowData(
+            ts_s=self.ts, s_start_mm=s_start, s_bar_mm=s_bar, pos_bar_mm=pos, tan_bar=tan,
+            past_cmd_mm=self._past_cmd(), s_max_mm=s_max, ds_max_mm=ds_max,
+            amax_mm_s2=self.amax * LP_ACC_MARGIN, tol_mm=self.tol, z=self.z, err_bar_mm=err_bar,
+            err_jac=err_jac, normal=normal, sigma_mm=sig, jmax_mm_s3=jmax, trust_mm=trust)
+
+    def _verify(self, s, s_max):
+        """Exact-path check of a horizon plan: (ok, worst chance value / tol, worst accel
+        ratio, predicted mean, std)."""
+        cmd = self.geom.position(s)[:, :2]
+        tan = self.geom.tangent(s)[:, :2]
+        k0 = len(self.s_hist)
+        mean, _, std = self.pred.predict(k0, cmd)
+        mu, sig = _contour(_normals(tan), cmd, mean, std)
+        chance = float(np.max(np.abs(mu) + self.z * sig)) / self.tol
+        full = np.vstack([self._past_cmd(), cmd])
+        acc = np.abs(np.diff(full, 2, axis=0)) / self.ts ** 2
+        acc_ratio = float(np.max(acc / self.amax[None, :]))
+        ok = (chance <= 1.0 + VERIFY_REL and acc_ratio <= 1.0 + VERIFY_ACC_REL
+              and s[-1] <= s_max + 1e-9 and np.all(np.diff(np.concatenate([[self.s_hist[-1]], s])) >= -1e-9))
+        self._last_mean = mean
+        return ok, chance, acc_ratio, mu, sig
+
+    def _trust0(self, s_start):
+        """Initial trust radius (mm): where the tangent linearisation of the path stays within
+        ``TRUST_POS_FRAC`` of the tolerance, from the turning of the tangent ahead."""
+        reach = self.vmax * self.ts * self.n
+        grid = s_start + np.linspace(0.0, reach, 64)
+        t = self.geom.tangent(grid)[:, :2]
+        turn = np.linalg.norm(np.diff(t, axis=0), axis=1)
+        kappa = float(np.max(turn)) / max(grid[1] - grid[0], 1e-9)
+        if kappa <= 1e-9:
+            return TRUST_MAX_MM
+        return float(np.clip(math.sqrt(2.0 * TRUST_POS_FRAC * self.tol / kappa),
+                             TRUST_MIN_MM, TRUST_MAX_MM))
+
+    def _objective(self, s):
+        return float(np.sum(s))
+
+    def _solve(self, s_start, s_ref, s_max, ref_ok, s_guess):
+        """Sequential LP with an adaptive trust region. Linearises first about ``s_guess``
+        (the previous plan continued at its speed: where the new plan is likely to go), and
+        falls back to the verified reference ``s_ref`` (the previous horizon's braking
+        continuation, or rest) when the LP there is infeasible. Returns (status, s): s is the
+        best *verified* plan found (s_ref when nothing better verifies and ``ref_ok``)."""
+        s_best = s_ref if ref_ok else None
+        best_obj = self._objective(s_ref) if ref_ok else -np.inf
+        s_lin = s_guess
+        delta = self._trust0(s_start)
+        delta_cap = min(TRUST_MAX_MM, TRUST_GROWTH_CAP * delta)
+        status = "continued"
+        for _ in range(self.st.max_iter):
+            w = self._window_data(s_start, s_lin, s_max, trust=delta)
+            warm = np.diff(np.concatenate([[s_start], s_lin]))
+            sol = win.solve_window(w, solver=self.st.solver, osqp_solver=self.osqp,
+                                   warm_ds_mm=warm)
+            self.stats["solver_s"] += sol.solve_s
+            self.stats["solve_times_s"].append(sol.solve_s)
+            self.stats["iterations"] += 1
+            if sol.status != win.STATUS_OPTIMAL:
+                key = "lp_" + sol.status
+                self.stats[key] = self.stats.get(key, 0) + 1
+                if s_best is None:
+                    return sol.status, None
+                if s_lin is s_best:
+                    delta *= 0.5
+                s_lin = s_best
+                continue
+            s_new = np.minimum(sol.s_mm, s_max)
+            ok = self._verify(s_new, s_max)[0]
+            moved = float(np.max(np.abs(s_new - s_lin)))
+            if ok:
+                obj = self._objective(s_new)
+                if obj >= best_obj:
+                    s_best, best_obj = s_new, obj
+                    status = "optimal"
+                if moved < self.st.conv_tol_mm:
+                    return "converged", s_best
+                s_lin = s_new
+                delta = min(2.0 * delta, delta_cap)
+            else:
+                # linearisation residue: step back towards the verified plan (line search on
+                # the convex combination), else re-linearise at the new point
+                stepped = False
+                if s_best is not None:
+                    for alpha in LINE_SEARCH:
+                        s_a = s_best + alpha * (s_new - s_best)
+                        if self._verify(s_a, s_max)[0] and self._objective(s_a) > best_obj:
+                            s_best, best_obj = s_a, self._objective(s_a)
+                            status = "optimal"
+                            stepped = True
+                            break
+                if stepped:
+                    s_lin = s_best
+                elif moved < 4 * self.st.conv_tol_mm or s_best is not None:
+                    delta *= 0.5
+                    s_lin = s_best if s_best is not None else s_new
+                else:
+                    s_lin = s_new
+                if delta < TRUST_MIN_MM * 0.25:
+                    break
+        if s_best is None:
+            return "unverified", None
+        if status == "optimal":
+            self.stats["unconverged"] += 1
+        return status, s_best
+
+    def _elastic(self, s_start, s_bar, s_max):
+        """Minimum-violation plan: the chance constraint with a penalised slack (HiGHS),
+        within a trust region about s_bar (which must satisfy the kinematic limits)."""
+        from scipy.optimize import linprog
+
+        delta = self._trust0(s_start)
+        w = self._window_data(s_start, s_bar, s_max, trust=delta)
+        lp = win.build_lp(w)
+        n = lp.c.size
+        cont = lp.row_kind == 3
+        m_c = int(cont.sum())
+        # slack per contour row, in mm (the rows are in mm)
+        S = np.zeros((lp.A.shape[0], m_c))
+        S[np.flatnonzero(cont), np.arange(m_c)] = 1.0
+        A_hi = np.hstack([lp.A, -S])
+        A_lo = np.hstack([-lp.A, -S])
+        fh, fl = np.isfinite(lp.hi), np.isfinite(lp.lo)
+        c = np.concatenate([-lp.c, np.full(m_c, ELASTIC_WEIGHT * n / self.tol)])
+        bounds = np.vstack([np.column_stack([lp.lb, lp.ub]),
+                            np.column_stack([np.zeros(m_c), np.full(m_c, np.inf)])])
+        t0 = time.perf_counter()
+        res = linprog(c, A_ub=np.vstack([A_hi[fh], A_lo[fl]]),
+                      b_ub=np.concatenate([lp.hi[fh], -lp.lo[fl]]), bounds=bounds,
+                      method="highs-ds")
+        self.stats["solver_s"] += time.perf_counter() - t0
+        if res.status != 0:
+            return None
+        ds = np.clip(res.x[:n], lp.lb, lp.ub) * lp.ds_ref_mm
+        s = np.minimum(s_start + np.cumsum(ds), s_max)
+        _, _, acc_ratio, _, _ = self._verify(s, s_max)
+        if acc_ratio > 1.0 + VERIFY_ACC_REL:
+            return None
+        return s
+
+    def _commit(self, s_new: np.ndarray):
+        cmd = self.geom.position(s_new)[:, :2]
+        k0 = len(self.s_hist)
+        self.s_hist.extend(float(v) for v in s_new)
+        self.cmd_hist.extend(cmd)
+        self.pred.commit(k0, cmd)
+        if self.on_commit is not None:
+            self.on_commit(k0, cmd)
+
+    # -- public --------------------------------------------------------------------------
+    def start(self, s0_mm: float = 0.0):
+        self._commit(np.array([s0_mm]))
+
+    def hold(self, n_samples: int):
+        """Stand still for n samples (dwell at an exact stop)."""
+        if n_samples > 0:
+            self._commit(np.full(n_samples, self.s_hist[-1]))
+            if self._prev is not None:
+                self._prev = None
+
+    def run_piece(self, s_max: float, max_windows: int | None = None):
+        """Plan from the current (resting) position to s_max, ending at rest there."""
+        nw = self.st.n_window
+        n = self.n
+        stall = 0
+        windows = 0
+        self._prev = None
+        while True:
+            s_start = self.s_hist[-1]
+            if s_start >= s_max - 1e-9:
+                # at the end of the piece: snap exactly, and wait until at rest (it is:
+                # every accepted horizon ends at rest and s is capped at s_max)
+                if s_start != s_max:
+                    self.s_hist[-1] = s_max
+                break
+            windows += 1
+            if max_windows is not None and windows > max_windows:
+                raise RuntimeError("window budget exhausted")
+            self.stats["windows"] += 1
+            # reference plan: the previous horizon's continuation (it brakes to rest and was
+            # verified), or rest at the start of a piece
+            if self._prev is not None:
+                tail = self._prev[nw:]
+                s_ref = np.concatenate([tail, np.full(n - tail.size, tail[-1])])
+            else:
+                s_ref = np.full(n, s_start)
+            s_ref = np.minimum(s_ref, s_max)
+            ref_ok = self._verify(s_ref, s_max)[0]
+            v_last = self.s_hist[-1] - self.s_hist[-2] if len(self.s_hist) > 1 else 0.0
+            s_guess = np.minimum(s_start + v_last * np.arange(1, n + 1), s_max)
+            s_guess = np.maximum(s_guess, s_ref)
+            status, accepted = self._solve(s_start, s_ref, s_max, ref_ok, s_guess)
+            if accepted is not None and status == "continued":
+                self.stats["fallback_windows"].append(len(self.s_hist))
+                status = "fallback"
+            if accepted is None:
+                accepted = self._elastic(s_start, s_ref, s_max)
+                self.stats["relaxed_windows"].append(len(self.s_hist))
+                status = "relaxed"
+                if accepted is None:
+                    accepted = s_ref  # kinematically valid: a continuation or rest
+                    status = "held"
+            self._count(status)
+            accepted = np.maximum.accumulate(np.clip(accepted, s_start, s_max))
+            ok, chance, acc_ratio, mu, sig = self._verify(accepted, s_max)
+            self.stats["pred_mean_mm"].append(mu[:nw])
+            self.stats["pred_std_mm"].append(sig[:nw])
+            self.stats["pred_xy_mm"].append(self._last_mean[:, :nw].T)
+            self._prev = accepted
+            progress = accepted[nw - 1] - s_start
+            stall = stall + 1 if progress <= 1e-12 else 0
+            if stall > 50:
+                raise win_error(len(self.s_hist), s_start)
+            self._commit(accepted[:nw])
+        return self
+
+    def result(self) -> MpcResult:
+        st = self.stats
+        info = {
+            "windows": st["windows"], "solver_iterations": st["iterations"],
+            "solver_s": st["solver_s"], "window_status": dict(st["status"]),
+            "fallback_windows": len(st["fallback_windows"]),
+            "relaxed_windows": len(st["relaxed_windows"]),
+            "fallback_at_samples": st["fallback_windows"][:100],
+            "unconverged_windows": st["unconverged"],
+            "horizon_samples": self.n, "n_window": self.st.n_window, "n_brake": self.n_brake,
+            "n_hold": self.st.n_hold,
+        }
+        if st["pred_mean_mm"]:
+            info["_pred_mean_mm"] = np.concatenate(st["pred_mean_mm"])
+            info["_pred_std_mm"] = np.concatenate(st["pred_std_mm"])
+            info["_pred_xy_mm"] = np.concatenate(st["pred_xy_mm"])
+        return MpcResult(np.asarray(self.s_hist, float), info)
+
+
+def win_error(k, s):
+    from ..errors import SolverError
+
+    return SolverError(f"sample {k} (s = {s:.3f} mm): no window plan found, not even with the "
+                       "tolerance relaxed; raise --tolerance or check the machine profile")
