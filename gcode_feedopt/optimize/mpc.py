@@ -42,13 +42,10 @@ VERIFY_ACC_REL = 0.01
 #: The LP uses this fraction of A_max: the tangent linearisation misses part of the
 #: centripetal term while the plan moves from s̄, and verification allows VERIFY_ACC_REL.
 LP_ACC_MARGIN = 0.995
-#: Trust region of the sequential LP: the tangent linearisation may deviate from the path by
-#: this fraction of the tolerance at the initial radius; radius bounds, mm.
-TRUST_POS_FRAC = 0.25
-TRUST_MIN_MM = 0.02
-TRUST_MAX_MM = 10.0
-#: The trust radius grows at most to this multiple of its initial value within a window.
-TRUST_GROWTH_CAP = 8.0
+#: Speed trust region of the sequential LP: initial radius such that the linearisation
+#: residue κ(ṡ − ṡ̄)² is this fraction of A_max; lower bound, mm/s.
+TRUST_ACC_FRAC = 0.01
+TRUST_MIN_MM_S = 1.0
 #: Step fractions tried back towards the verified plan when a linearised step fails
 #: verification.
 LINE_SEARCH = (0.5, 0.25)
@@ -154,7 +151,7 @@ class MpcPlanner:
             last = [last[0]] + last
         return np.array(last)
 
-    def _window_data(self, s_start, s_bar, s_max, trust=None):
+    def _window_data(self, s_start, s_bar, s_max, trust=None, trust_v=None):
         n = self.n
         nw, nb = self.st.n_window, self.n_brake
         pos = self.geom.position(s_bar)[:, :2]
@@ -172,7 +169,8 @@ class MpcPlanner:
             ts_s=self.ts, s_start_mm=s_start, s_bar_mm=s_bar, pos_bar_mm=pos, tan_bar=tan,
             past_cmd_mm=self._past_cmd(), s_max_mm=s_max, ds_max_mm=ds_max,
             amax_mm_s2=self.amax * LP_ACC_MARGIN, tol_mm=self.tol, z=self.z, err_bar_mm=err_bar,
-            err_jac=err_jac, normal=normal, sigma_mm=sig, jmax_mm_s3=jmax, trust_mm=trust)
+            err_jac=err_jac, normal=normal, sigma_mm=sig, jmax_mm_s3=jmax, trust_mm=trust,
+            trust_v_mm_s=trust_v)
 
     def _verify(self, s, s_max):
         """Exact-path check of a horizon plan: (ok, worst chance value / tol, worst accel
@@ -192,17 +190,18 @@ class MpcPlanner:
         return ok, chance, acc_ratio, mu, sig
 
     def _trust0(self, s_start):
-        """Initial trust radius (mm): where the tangent linearisation of the path stays within
-        ``TRUST_POS_FRAC`` of the tolerance, from the turning of the tangent ahead."""
+        """Initial speed trust radius (mm/s): the tangent linearisation misses κ(ṡ − ṡ̄)² of
+        acceleration; keep that within ``TRUST_ACC_FRAC`` of A_max on the sharpest turn
+        ahead (from the turning of the tangent over the reach of the horizon)."""
         reach = self.vmax * self.ts * self.n
-        grid = s_start + np.linspace(0.0, reach, 64)
+        grid = s_start + np.linspace(0.0, reach, 128)
         t = self.geom.tangent(grid)[:, :2]
         turn = np.linalg.norm(np.diff(t, axis=0), axis=1)
         kappa = float(np.max(turn)) / max(grid[1] - grid[0], 1e-9)
         if kappa <= 1e-9:
-            return TRUST_MAX_MM
-        return float(np.clip(math.sqrt(2.0 * TRUST_POS_FRAC * self.tol / kappa),
-                             TRUST_MIN_MM, TRUST_MAX_MM))
+            return self.vmax
+        return float(np.clip(math.sqrt(TRUST_ACC_FRAC * float(np.min(self.amax)) / kappa),
+                             TRUST_MIN_MM_S, self.vmax))
 
     def _objective(self, s):
         return float(np.sum(s))
@@ -217,10 +216,10 @@ class MpcPlanner:
         best_obj = self._objective(s_ref) if ref_ok else -np.inf
         s_lin = s_guess
         delta = self._trust0(s_start)
-        delta_cap = min(TRUST_MAX_MM, TRUST_GROWTH_CAP * delta)
+        delta_cap = self.vmax
         status = "continued"
         for _ in range(self.st.max_iter):
-            w = self._window_data(s_start, s_lin, s_max, trust=delta)
+            w = self._window_data(s_start, s_lin, s_max, trust_v=delta)
             warm = np.diff(np.concatenate([[s_start], s_lin]))
             sol = win.solve_window(w, solver=self.st.solver, osqp_solver=self.osqp,
                                    warm_ds_mm=warm)
@@ -267,7 +266,7 @@ class MpcPlanner:
                     s_lin = s_best if s_best is not None else s_new
                 else:
                     s_lin = s_new
-                if delta < TRUST_MIN_MM * 0.25:
+                if delta < TRUST_MIN_MM_S * 0.25:
                     break
         if s_best is None:
             return "unverified", None
@@ -281,7 +280,7 @@ class MpcPlanner:
         from scipy.optimize import linprog
 
         delta = self._trust0(s_start)
-        w = self._window_data(s_start, s_bar, s_max, trust=delta)
+        w = self._window_data(s_start, s_bar, s_max, trust_v=delta)
         lp = win.build_lp(w)
         n = lp.c.size
         cont = lp.row_kind == 3

@@ -80,6 +80,9 @@ class WindowData:
         contour_rows: bool (n,) samples whose contour error is constrained (default all).
         trust_mm: optional trust region |s_k − s̄_k| ≤ trust_mm (the linearisation of a
             curved path is good only near s̄; mpc.py adapts it).
+        trust_v_mm_s: optional speed trust region |Δs_k − Δs̄_k| ≤ trust_v·Ts: the tangent
+            linearisation misses κ·(ṡ − ṡ̄)² of acceleration, so bounding the speed change
+            bounds the acceleration (and contour) residue; plain variable bounds, no rows.
     """
 
     ts_s: float
@@ -101,6 +104,7 @@ class WindowData:
     jmax_mm_s3: np.ndarray | None = None
     contour_rows: np.ndarray | None = None
     trust_mm: float | None = None
+    trust_v_mm_s: float | None = None
 
     @property
     def n(self) -> int:
@@ -251,8 +255,15 @@ def build_lp(w: WindowData) -> LinearProgram:
             samples.append(np.flatnonzero(mask))
 
     c = (n - np.arange(n)) / n  # Σ_k s_k = const + Σ_i (n − i) Δs_i
+    lb = np.zeros(n)
+    ub = np.asarray(w.ds_max_mm, float).copy()
+    if w.trust_v_mm_s is not None:
+        ds_bar = np.diff(np.concatenate([[w.s_start_mm], w.s_bar_mm]))
+        step = w.trust_v_mm_s * ts
+        lb = np.minimum(np.maximum(lb, ds_bar - step), ub)
+        ub = np.maximum(np.minimum(ub, ds_bar + step), lb)
     return LinearProgram(c=c, A=np.vstack(rows), lo=np.concatenate(lo), hi=np.concatenate(hi),
-                         lb=np.zeros(n), ub=np.asarray(w.ds_max_mm, float) / ds_ref,
+                         lb=lb / ds_ref, ub=ub / ds_ref,
                          ds_ref_mm=ds_ref, row_kind=np.concatenate(kinds),
                          row_sample=np.concatenate(samples))
 
