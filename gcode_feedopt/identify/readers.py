@@ -3,7 +3,8 @@
 Kinds, recognised from the header line:
 - ``frf``: CSV ``freq_hz,real,imag`` (complex FRF, commanded -> actual position);
 - ``spectra``: Klipper resonance spectra ``freq,psd_x,psd_y,psd_z,psd_xyz``;
-- ``uff``: Universal File Format, dataset 58 (function records), read with pyuff.
+- ``uff``: Universal File Format, dataset 58 (function records), read with pyuff;
+- ``raw``: Klipper raw accelerometer recording ``#time,accel_x,accel_y,accel_z`` (s, mm/s^2).
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from ..errors import ProfileError
 
 
 def detect_kind(path) -> str:
-    """'frf' or 'spectra' from the first line of ``path``; ProfileError otherwise."""
+    """'frf', 'spectra', 'raw' or 'uff' from the first line of ``path``; ProfileError otherwise."""
     path = pathlib.Path(path)
     try:
         head = path.open("r", errors="replace").readline().strip().lower().replace(" ", "")
@@ -28,8 +29,11 @@ def detect_kind(path) -> str:
         return "frf"
     if head.startswith("freq,psd_x"):
         return "spectra"
+    if head.lstrip("#").startswith("time,accel_x,accel_y,accel_z"):
+        return "raw"
     raise ProfileError(f"{path}:1: unknown file kind (header {head[:40]!r}); expected "
-                       f"'freq_hz,real,imag' (FRF), 'freq,psd_x,...' (Klipper spectra) or UFF ('    -1')")
+                       f"'freq_hz,real,imag' (FRF), 'freq,psd_x,...' (Klipper spectra), "
+                       f"'#time,accel_x,accel_y,accel_z' (Klipper raw) or UFF ('    -1')")
 
 
 def read_spectra(path, axis: str) -> tuple[np.ndarray, np.ndarray]:
@@ -63,3 +67,16 @@ def read_uff58(path) -> list[tuple[np.ndarray, np.ndarray, str]]:
     if not out:
         raise ProfileError(f"{path}: no dataset 58 (FRF) in the UFF file; export FRFs as 58")
     return out
+
+
+def read_raw(path) -> tuple[np.ndarray, np.ndarray]:
+    """Klipper raw accelerometer CSV -> (t_s (K,), accel_mm_s2 (K, 3))."""
+    try:
+        data = np.loadtxt(path, delimiter=",", comments="#", ndmin=2)
+    except ValueError as exc:
+        raise ProfileError(f"{path}: not a numeric '#time,accel_x,accel_y,accel_z' table "
+                           f"({exc}); pass the file Klipper wrote") from None
+    if data.shape[1] < 4 or len(data) < 2:
+        raise ProfileError(f"{path}: need 4 columns time,accel_x,accel_y,accel_z and at least "
+                           f"2 rows, got {data.shape[1]} columns, {len(data)} rows")
+    return data[:, 0], data[:, 1:4]
