@@ -66,3 +66,41 @@ def plot_run(path, schedule, out_png, *, title: str = "", tolerance_mm: float | 
         fig.suptitle(title)
     fig.savefig(out_png, dpi=110)
     plt.close(fig)
+
+
+def plot_compare(runs, out_png, *, tolerance_mm: float, title: str = "") -> None:
+    """The paper's Fig. 12: feedrate, acceleration, contour error, tolerance violation γ and
+    prediction error against time, one colour per method."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(5, 1, figsize=(11, 12), sharex=True, constrained_layout=True)
+    for r in runs:
+        s = r.series
+        t = s["t_s"]
+        label = f"{r.method} ({r.cycle_time_s:.2f} s)"
+        axes[0].plot(t, s["feed_mm_s"], lw=0.8, label=label)
+        acc = np.hypot(s["acc_x_mm_s2"], s["acc_y_mm_s2"]) / 1000.0
+        axes[1].plot(t, acc, lw=0.6)
+        eps = s.get("contour_error_mm")
+        if eps is not None:
+            axes[2].plot(t, eps, lw=0.6)
+            axes[3].plot(t, 1000.0 * np.maximum(eps - tolerance_mm, 0.0), lw=0.6)
+        if "pred_err_x_mm" in s:
+            axes[4].plot(t, np.hypot(s["pred_err_x_mm"], s["pred_err_y_mm"]), lw=0.6)
+        else:
+            axes[4].plot([], [])
+    axes[2].axhline(tolerance_mm, color="k", ls="--", lw=0.8)
+    axes[0].set_ylabel("feed (mm/s)")
+    axes[1].set_ylabel("|acc| (m/s²)")
+    axes[2].set_ylabel("contour err (mm)")
+    axes[3].set_ylabel("γ (µm)")
+    axes[4].set_ylabel("pred. err (mm)")
+    axes[4].set_xlabel("time (s)")
+    axes[0].legend(fontsize=8, ncol=3)
+    if title:
+        axes[0].set_title(title)
+    fig.savefig(out_png, dpi=110)
+    plt.close(fig)

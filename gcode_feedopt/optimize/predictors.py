@@ -66,3 +66,322 @@ class FirPredictor:
         if self.disturbance is not None:
             mean += self.disturbance(np.arange(k0, k0 + n)).T
         return mean, jac, np.full((2, n), self.std)
+
+
+class _Growing:
+    """An append-only float array (amortised O(1) appends, views without copies)."""
+
+    def __init__(self, cap: int = 4096):
+        self.a = np.zeros(cap)
+        self.n = 0
+
+    def extend(self, v) -> None:
+        v = np.asarray(v, float).ravel()
+        need = self.n + v.size
+        if need > self.a.size:
+            grown = np.zeros(max(need, 2 * self.a.size))
+            grown[:self.n] = self.a[:self.n]
+            self.a = grown
+        self.a[self.n:need] = v
+        self.n = need
+
+    def tail(self, k0: int, m: int) -> np.ndarray:
+        """Samples k0−m … k0−1, zero-padded before the start."""
+        lo = k0 - m
+        if lo >= 0:
+            return self.a[lo:k0]
+        return np.concatenate([np.zeros(-lo), self.a[:max(k0, 0)]])
+
+    def __getitem__(self, i):
+        return self.a[:self.n][i]
+
+    def __setitem__(self, i, v):
+        self.a[i] = v
+
+    def __len__(self):
+        return self.n
+
+
+class TwinPredictor:
+    """The uncertainty-aware twin over a window horizon, both axes (paper Sec. 3.2).
+
+    Per axis, on deviations w from the first commanded sample: x̂ = μ_h * w with variance
+    ||Lᵀw_t||² from the *full* tap covariance Σ_h = L Lᵀ (twin.features.xhat; the paper's
+    diagonal Eq. 12 overstates a settled position's uncertainty more than tenfold, because
+    every FRF draw keeps the certain DC gain); ψ_t = [1, x̂(t−n2)…x̂(t), e(t−n3)…e(t−1)];
+    predictive mean μ_βᵀψ_t and variance (μ_β∘v_ψ)·μ_β + ψᵀΣ_βψ + diag(Σ_β)·v_ψ + σ_ε²
+    (blr.predict). Unknown errors e (future, or never measured offline) are the twin's own
+    predictions (Eq. 5); the mean is then the solution of a lower-triangular linear system
+    in the horizon, so mean and Jacobian are computed in closed form (no per-sample loop).
+    ``observe`` feeds measured positions: e becomes measured and, with ``learn``, the
+    weights are updated sample by sample (blr.laplace_update, Eq. 18; Eq. 19 when Σ_ψ = 0).
+    """
+
+    def __init__(self, irs, n2: int, n3: int, sigma2: float, mu, cov, *,
+                 use_feature_var: bool = True, learn: bool = False):
+        self.h = [np.asarray(ir.mean, float) for ir in irs]
+        self.L = [np.asarray(ir.factor, float) if use_feature_var else np.zeros((ir.mean.size, 0))
+                  for ir in irs]
+        self.n2, self.n3 = int(n2), int(n3)
+        self.s2 = float(sigma2)
+        self.mu = [np.array(m, float) for m in mu]
+        self.cov = [np.array(c, float) for c in cov]
+        self.use_var = use_feature_var
+        self.learn = learn
+        self.ref = None
+        self.w = [_Growing(), _Growing()]    # command deviation from ref
+        self.xh = [_Growing(), _Growing()]   # x̂ mean (deviation)
+        self.xv = [_Growing(), _Growing()]   # x̂ variance
+        self.e = [_Growing(), _Growing()]    # measured or predicted e = x − x̂ (deviation)
+        self.pred_mean = [[], []]  # the twin's prediction of each committed sample (absolute)
+        self.pred_std = [[], []]
+        self._free: dict = {}
+        self._toep: dict = {}
+        self._rec: dict = {}
+        self.maxlag = max(self.n2, self.n3)
+        self.yhist = [None, None]  # last maxlag rows of the factor series per axis
+
+    @property
+    def d(self) -> int:
+        return 1 + self.n2 + 1 + self.n3
+
+    # -- physics part: x̂ over the horizon -------------------------------------------------
+    def _history_matrix(self, a: int, k0: int, n: int) -> np.ndarray:
+        """W (n, n_taps): W[t, q] = w(k0 + t − q) for k0 + t − q < k0 (history), else 0."""
+        nt = self.h[a].size
+        hist = self.w[a].tail(k0, nt)  # samples k0−nt … k0−1
+        # W[t, q] = hist[nt + t − q] when q > t
+        ext = np.concatenate([hist, np.zeros(n)])
+        q = np.arange(nt)[None, :]
+        t = np.arange(n)[:, None]
+        idx = nt + t - q
+        W = np.where(q > t, ext[np.clip(idx, 0, ext.size - 1)], 0.0)
+        return W
+
+    def _free_response(self, a: int, k0: int, n: int):
+        key = (a, k0, n)
+        got = self._free.get(key)
+        if got is None:
+            if len(self._free) > 8:
+                self._free.clear()
+            W = self._history_matrix(a, k0, n)
+            got = (W @ self.h[a], W @ self.L[a])
+            self._free[key] = got
+        return got
+
+    def _toeplitz(self, a: int, n: int):
+        key = (a, n)
+        got = self._toep.get(key)
+        if got is None:
+            Jx = _jac(self.h[a], n)
+            L = self.L[a]
+            r = L.shape[1]
+            TL = np.zeros((r, n, n))
+            m = min(n, L.shape[0])
+            for lag in range(m):
+                idx = np.arange(lag, n)
+                TL[:, idx, idx - lag] = L[lag][:, None]
+            got = (Jx, TL)
+            self._toep[key] = got
+        return got
+
+    def _xhat_h(self, a: int, k0: int, dev_h: np.ndarray):
+        n = dev_h.size
+        free_m, free_Y = self._free_response(a, k0, n)
+        Jx, TL = self._toeplitz(a, n)
+        xm = free_m + Jx @ dev_h
+        if TL.shape[0]:
+            Y = free_Y + (TL @ dev_h).T
+            xv = np.einsum("ij,ij->i", Y, Y)
+        else:
+            Y = np.zeros((n, 0))
+            xv = np.zeros(n)
+        return xm, xv, Jx, Y
+
+    # -- regression part --------------------------------------------------------------------
+    def _recursion(self, a: int, n: int):
+        """Matrices of the horizon mean for the current weights: Sx (n, n) picks μ_x over the
+        horizon x̂, Ae (n, n) μ_e over horizon errors, and (I − Ae)⁻¹."""
+        key = (a, n)
+        got = self._rec.get(key)
+        if got is None:
+            mu = self.mu[a]
+            n2, n3 = self.n2, self.n3
+            wx, we = mu[1:2 + n2], mu[2 + n2:]
+            Sx = np.zeros((n, n))
+            for j in range(n2 + 1):       # weight wx[j] on x̂(t − (n2 − j))
+                lag = n2 - j
+                idx = np.arange(lag, n)
+                Sx[idx, idx - lag] += wx[j]
+            Ae = np.zeros((n, n))
+            for j in range(n3):           # weight we[j] on e(t − (n3 − j))
+                lag = n3 - j
+                idx = np.arange(lag, n)
+                Ae[idx, idx - lag] += we[j]
+            inv = np.linalg.inv(np.eye(n) - Ae)
+            got = (Sx, Ae, inv)
+            self._rec[key] = got
+        return got
+
+    def _axis(self, a: int, k0: int, dev_h: np.ndarray):
+        n = dev_h.size
+        n2, n3 = self.n2, self.n3
+        mu, cov = self.mu[a], self.cov[a]
+        xm, xv, Jx, Y = self._xhat_h(a, k0, dev_h)
+        px = self.xh[a].tail(k0, n2)
+        pv = self.xv[a].tail(k0, n2)
+        pe = self.e[a].tail(k0, n3)
+        pev = self.xv[a].tail(k0, n3)
+        wx, we = mu[1:2 + n2], mu[2 + n2:]
+        Sx, Ae, inv = self._recursion(a, n)
+        # contributions of the history lags to each horizon sample
+        allx_hist = np.concatenate([px, np.zeros(n)])
+        alle_hist = np.concatenate([pe, np.zeros(n)])
+        cx_hist = np.lib.stride_tricks.sliding_window_view(allx_hist, n2 + 1)[:n] @ wx
+        ce_hist = np.lib.stride_tricks.sliding_window_view(alle_hist, n3)[:n] @ we \
+            if n3 else np.zeros(n)
+        rhs = mu[0] + cx_hist + ce_hist + Sx @ xm - Ae @ xm
+        m = inv @ rhs
+        Jm = inv @ ((Sx - Ae) @ Jx)
+        e_h = m - xm
+        # feature means and variances, vectorized over the horizon
+        allx = np.concatenate([px, xm])
+        alle = np.concatenate([pe, e_h])
+        P = np.empty((n, self.d))
+        P[:, 0] = 1.0
+        P[:, 1:2 + n2] = np.lib.stride_tricks.sliding_window_view(allx, n2 + 1)[:n]
+        if n3:
+            P[:, 2 + n2:] = np.lib.stride_tricks.sliding_window_view(alle, n3)[:n]
+        var = self.s2 + np.einsum("td,de,te->t", P, cov, P, optimize=True)
+        if self.use_var and Y.shape[1]:
+            # β̄ᵀΣ_ψβ̄ with the full feature covariance (as twin.model.AxisTwin.run): the
+            # random part of Σ_lag c_lag x̂(t − lag), c = +β_x on x̂ lags, −β_e on e lags
+            # (e = x − x̂ inherits x̂'s uncertainty with the opposite sign)
+            ml = self.maxlag
+            Yall = np.vstack([self._ytail(a, k0), Y])
+            c = np.zeros(ml + 1)
+            np.add.at(c, np.arange(n2, -1, -1), wx)
+            np.add.at(c, np.arange(n3, 0, -1), -we)
+            win = np.lib.stride_tricks.sliding_window_view(Yall, ml + 1, axis=0)[:n]
+            q = win @ c[::-1]
+            quad = np.einsum("ij,ij->i", q, q)
+            V = np.zeros((n, self.d))
+            V[:, 1:2 + n2] = np.lib.stride_tricks.sliding_window_view(
+                np.concatenate([pv, xv]), n2 + 1)[:n]
+            if n3:
+                V[:, 2 + n2:] = np.lib.stride_tricks.sliding_window_view(
+                    np.concatenate([pev, xv]), n3)[:n]
+            var = var + quad + V @ np.diag(cov)
+        return m, Jm, np.sqrt(np.maximum(var, 0.0)), xm, xv, Y
+
+    def _ytail(self, a: int, k0: int) -> np.ndarray:
+        """(maxlag, r) factor series of the samples k0−maxlag … k0−1 (zeros before start)."""
+        ml, r = self.maxlag, self.L[a].shape[1]
+        got = self.yhist[a]
+        out = np.zeros((ml, r))
+        if got is not None and got.shape[0]:
+            take = got[-ml:]
+            out[ml - take.shape[0]:] = take
+        return out
+
+    def predict(self, k0: int, cmd_h: np.ndarray):
+        cmd_h = np.asarray(cmd_h, float)
+        n = cmd_h.shape[0]
+        if self.ref is None:
+            self.ref = cmd_h[0].copy()
+        mean = np.empty((2, n))
+        std = np.empty((2, n))
+        jac = np.empty((2, n, n))
+        for a in range(2):
+            m, Jm, sd, _, _, _ = self._axis(a, k0, cmd_h[:, a] - self.ref[a])
+            mean[a] = m + self.ref[a]
+            std[a] = sd
+            jac[a] = Jm
+        return mean, jac, std
+
+    #: commits longer than this are taken in chunks (the horizon Toeplitz stacks are
+    #: (r, n, n); a long rest-to-rest move would otherwise build a huge one)
+    COMMIT_CHUNK = 64
+
+    def commit(self, k0: int, cmd: np.ndarray) -> None:
+        cmd = np.asarray(cmd, float)
+        if cmd.shape[0] > self.COMMIT_CHUNK:
+            for j in range(0, cmd.shape[0], self.COMMIT_CHUNK):
+                self.commit(k0 + j, cmd[j:j + self.COMMIT_CHUNK])
+            return
+        if self.ref is None:
+            self.ref = cmd[0].copy()
+        for a in range(2):
+            dev = cmd[:, a] - self.ref[a]
+            m, _, sd, xm, xv, Y = self._axis(a, k0, dev)
+            prev = self.yhist[a]
+            Y = Y if prev is None else np.vstack([prev, Y])
+            self.yhist[a] = Y[-self.maxlag:]
+            self.w[a].extend(dev)
+            self.xh[a].extend(xm)
+            self.xv[a].extend(xv)
+            self.e[a].extend(m - xm)
+            self.pred_mean[a].extend(m + self.ref[a])
+            self.pred_std[a].extend(sd)
+        self._free.clear()
+
+    def observe(self, k0: int, meas: np.ndarray) -> None:
+        """Measured XY (m, 2) of committed samples k0…k0+m−1: errors become measured and,
+        with ``learn``, the weights learn from each sample (one sample behind, as online)."""
+        from ..twin.blr import laplace_update
+
+        meas = np.asarray(meas, float)
+        n2, n3 = self.n2, self.n3
+        for a in range(2):
+            xh, xv, e = self.xh[a], self.xv[a], self.e[a]
+            for j in range(meas.shape[0]):
+                t = k0 + j
+                x_dev = meas[j, a] - self.ref[a]
+                if self.learn:
+                    psi = np.concatenate([[1.0], xh.tail(t + 1, n2 + 1), e.tail(t, n3)])
+                    if self.use_var:
+                        var = np.concatenate([[0.0], xv.tail(t + 1, n2 + 1), xv.tail(t, n3)])
+                    else:
+                        var = np.zeros(psi.size)
+                    self.mu[a], self.cov[a] = laplace_update(self.mu[a], self.cov[a], psi, var,
+                                                             x_dev, self.s2)
+                e[t] = x_dev - xh[t]
+        if self.learn:
+            self._rec.clear()
+
+
+class PlantPredictor:
+    """The oracle: the virtual machine's own plant (impulse responses and effects) run on
+    the committed history plus the horizon; Jacobian from its impulse responses; zero std.
+    Sensor noise is not part of the prediction (it is not motion)."""
+
+    def __init__(self, plant):
+        from ..vm import effects as fx
+
+        self.plant = plant
+        self.effects = tuple(e for e in plant.effects if e.stage != "sensor")
+        self.h = (plant.impulse["x"], plant.impulse["y"])
+        self.cmd: list[np.ndarray] = []
+        self._jac_cache = {}
+        del fx
+
+    def commit(self, k0: int, cmd: np.ndarray) -> None:
+        self.cmd.extend(np.asarray(cmd, float))
+
+    def predict(self, k0: int, cmd_h: np.ndarray):
+        from ..vm.plant import simulate_axes
+
+        cmd_h = np.asarray(cmd_h, float)
+        n = cmd_h.shape[0]
+        full = np.vstack([np.asarray(self.cmd, float).reshape(-1, 2), cmd_h])
+        cmd3 = np.column_stack([full, np.zeros(full.shape[0])])
+        out = simulate_axes(cmd3, self.plant.ts_s, self.plant.impulse, self.effects,
+                            mode_hz=self.plant.mode_hz).actual_mm
+        mean = out[-n:, :2].T
+        jac = np.empty((2, n, n))
+        for a in range(2):
+            key = (a, n)
+            if key not in self._jac_cache:
+                self._jac_cache[key] = _jac(self.h[a], n)
+            jac[a] = self._jac_cache[key]
+        return mean, jac, np.zeros((2, n))

@@ -111,7 +111,7 @@ def ender3pro() -> MachineProfile:
                    "Ender 3 Klipper spectra ../shared/data/measured/ender3_resonances_y_*.csv "
                    "(bed mode 36 Hz, 39 Hz after belt tightening; published 36-42 Hz)"),
     }
-    twin = TwinSettings(n2=10, n3=30, sigma_eps_mm=0.01, coef_variance="minmax", n_taps=500)
+    twin = TwinSettings(n2=10, n3=30, sigma_eps_mm=0.01, coef_variance="ensemble", n_taps=500)
     return MachineProfile(
         name="ender3pro",
         description="Creality Ender 3 Pro (Marlin 2), limits of Kim & Okwudire Sec. 6.1; FRFs modelled",
@@ -148,7 +148,7 @@ def nomad3() -> MachineProfile:
         "y": _axis([Mode(55.0, 0.05, 0.85), Mode(110.0, 0.04, 0.15)], 3202,
                    "modelled: stepper + lead-screw table of a desktop mill, table mode + screw mode"),
     }
-    twin = TwinSettings(n2=3, n3=10, sigma_eps_mm=0.01, coef_variance="minmax", n_taps=500)
+    twin = TwinSettings(n2=3, n3=10, sigma_eps_mm=0.01, coef_variance="ensemble", n_taps=500)
     return MachineProfile(
         name="nomad3",
         description="Carbide 3D Nomad 3 desktop mill, limits of Kim & Okwudire Sec. 5; FRFs modelled",

@@ -227,7 +227,7 @@ def parse_profile(data, origin: str, base_dir: pathlib.Path | None) -> MachinePr
     twin = TwinSettings(
         n2=n2, n3=n3,
         sigma_eps_mm=tw.getfloat("sigma_eps_mm", above=0, maxval=10),
-        coef_variance=tw.getchoice("coef_variance", ("minmax", "sample"), "minmax"),
+        coef_variance=tw.getchoice("coef_variance", ("minmax", "sample", "ensemble"), "minmax"),
         n_taps=tw.getint("n_taps", 500, minval=8, maxval=100000),
         priors=priors,
     )

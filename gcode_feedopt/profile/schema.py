@@ -125,7 +125,7 @@ class TwinSettings:
     Attributes:
         n2, n3: feature orders (past x̂ samples, past prediction errors).
         sigma_eps_mm: σ_ε, the unobserved noise.
-        coef_variance: ``minmax`` (paper Eq. 9, 3σ = half the min–max range) or ``sample``.
+        coef_variance: ``minmax`` (paper Eq. 9, 3σ = half the min–max range), ``sample``, or ``ensemble`` (sample covariance of the N_H measured impulse responses, twin.frf.ensemble_impulse_response; the built-ins use it).
         n_taps: impulse-response length used by the twin.
         priors: axis -> Prior (absent when not learned yet).
     """

@@ -40,7 +40,8 @@ def test_95_interval_coverage_without_learning(butterfly, axis):
     prof, pos = butterfly
     x_cmd = pos[:, "xy".index(axis)]
     rng = np.random.default_rng(11)
-    H = draw_impulse_responses(prof.axes[axis].frf, prof.ts_s, prof.twin.n_taps, rng, 400)
+    H = draw_impulse_responses(prof.axes[axis].frf, prof.ts_s, prof.twin.n_taps, rng, 400,
+                               method=prof.twin.coef_variance)
     tw = axis_twin(prof, axis)
     tw.cov[:] = 0.0  # weights fixed at the physics prior: only the known uncertainty
     mean, std = tw.run(x_cmd, None, learn=False)
@@ -57,7 +58,8 @@ def test_95_interval_coverage_with_learning(butterfly, axis):
     prof, pos = butterfly
     x_cmd = pos[:, "xy".index(axis)]
     rng = np.random.default_rng(21)
-    H = draw_impulse_responses(prof.axes[axis].frf, prof.ts_s, prof.twin.n_taps, rng, 12)
+    H = draw_impulse_responses(prof.axes[axis].frf, prof.ts_s, prof.twin.n_taps, rng, 12,
+                               method=prof.twin.coef_variance)
     inside, widths = [], []
     for h in H:
         x_meas = simulate(prof, axis, x_cmd, h, rng)

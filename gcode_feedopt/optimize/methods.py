@@ -1,0 +1,306 @@
+"""The methods of issue 5 / paper Sec. 5, one dispatch: kinematic | conservative | pb | dd |
+pidd | oracle.
+
+- ``kinematic``: plan.kinematic (time-optimal under feed, per-axis acceleration, junctions).
+- ``conservative``: the same trapezoidal planner with V_max and A_max scaled down by one factor,
+  found by bisection, until the virtual machine's RMS tolerance violation normalised by E_max is
+  at most 1 − η (paper Sec. 5: "allowing up to (100 − η) % RMS violation").
+- ``pb``: the twin with the known uncertainty only (physics prior, Σ_ψ from the FRF set),
+  no learning.
+- ``dd``: the twin without known uncertainty (zero prior mean, Σ_ψ = 0), learned online (Eq. 19).
+- ``pidd``: the uncertainty-aware twin (physics prior + known uncertainty), learned online.
+- ``oracle``: the virtual machine's true plant known exactly (the physical limit; comparison
+  only).
+
+Offline (no measurements): the twin predicts with its prior and its own predicted errors
+(Eq. 5). Online (``plant`` given and ``online=True``, the paper's experiment): after each
+window is committed the plant runs it, and the twin learns from the measured positions before
+the next window is planned.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+from scipy.stats import norm
+
+from ..errors import FeedOptError
+from ..plan.kinematic import effective_limits, plan_kinematic
+from ..plan.schedule import Schedule
+from .mpc import MpcPlanner, MpcSettings
+from .predictors import PlantPredictor, TwinPredictor
+
+METHODS = ("kinematic", "conservative", "pb", "dd", "pidd", "oracle")
+TWIN_METHODS = ("pb", "dd", "pidd")
+#: Bisection steps of the conservative scale factor (2⁻¹⁰ of the range).
+CONSERVATIVE_STEPS = 10
+CONSERVATIVE_MIN_SCALE = 0.02
+
+
+def vm_trajectory(path, s_mm: np.ndarray, ts_s: float):
+    """Trajectory (pos (K,3), e (K,)) of a schedule on a path (as the writer's CSV)."""
+    from ..vm.trajectory import Trajectory
+
+    s = np.asarray(s_mm, float)
+    pos = path.position(s)
+    k = path.segment_at(s)
+    L = path.length_mm[k]
+    u = np.where(L > 0, (s - path.s0_mm[k]) / np.where(L > 0, L, 1.0), 0.0)
+    e_start = np.concatenate([[0.0], np.cumsum(path.de_mm)])[:-1]
+    e = e_start[k] + path.de_mm[k] * np.clip(u, 0, 1)
+    return Trajectory(ts_s=ts_s, pos_mm=pos, e_mm=e)
+
+
+def rms_violation_ratio(path, s_mm, plant, tol_mm, ts_s) -> tuple[float, object]:
+    """RMS γ / E_max of a schedule executed by ``plant`` (and its Metrics)."""
+    from ..vm.metrics import evaluate
+
+    tr = vm_trajectory(path, s_mm, ts_s)
+    out = plant.simulate(tr)
+    m = evaluate(tr, out.actual_mm, tol_mm)
+    return m.rms_gamma_mm / tol_mm, m
+
+
+def plan_conservative(path, profile, *, tolerance_mm, stringency, plant, vmax_mm_s=None,
+                      amax_mm_s2=None, fw_limits=None):
+    """Largest common scale of V_max and A_max (bisection) whose trapezoid plan keeps
+    RMS γ / E_max ≤ 1 − η on ``plant``."""
+    vmax, _, axis_a = effective_limits(profile, vmax_mm_s, amax_mm_s2)
+    amax = min(axis_a["x"], axis_a["y"])
+    budget = 1.0 - stringency
+    t0 = time.perf_counter()
+
+    def run(scale):
+        sch = plan_kinematic(path, profile, vmax_mm_s=vmax * scale, amax_mm_s2=amax * scale,
+                             fw_limits=fw_limits)
+        r, m = rms_violation_ratio(path, sch.s_mm, plant, tolerance_mm, profile.ts_s)
+        return sch, r, m
+
+    sch, r, m = run(1.0)
+    trials = [(1.0, r)]
+    if r <= budget:
+        best = (1.0, sch, r)
+    else:
+        lo, hi = CONSERVATIVE_MIN_SCALE, 1.0
+        sch_lo, r_lo, _ = run(lo)
+        trials.append((lo, r_lo))
+        best = (lo, sch_lo, r_lo)
+        for _ in range(CONSERVATIVE_STEPS):
+            mid = math.sqrt(lo * hi)
+            sch_m, r_m, _ = run(mid)
+            trials.append((mid, r_m))
+            if r_m <= budget:
+                lo, best = mid, (mid, sch_m, r_m)
+            else:
+                hi = mid
+    scale, sch, r = best
+    info = dict(sch.info)
+    info.update({"conservative_scale": scale, "vmax_mm_s": vmax * scale,
+                 "amax_mm_s2": amax * scale, "rms_violation_ratio": r,
+                 "violation_budget": budget, "tuning_trials": len(trials),
+                 "compute_s": time.perf_counter() - t0})
+    return Schedule(ts_s=sch.ts_s, s_mm=sch.s_mm, method="conservative", info=info)
+
+
+#: Prior std of the *sum* of the x̂ weights (the physics model's DC gain): stepper axes
+#: position by counting steps, and every FRF draw keeps the certain DC gain (twin.frf).
+DC_GAIN_STD = 1e-6
+
+
+def shift_invariant_cov(cov: np.ndarray, n2: int, dc_std: float = DC_GAIN_STD) -> np.ndarray:
+    """Prior covariance of β with the x̂-weight block made shift-invariant.
+
+    The features are deviations from the first commanded sample, so with independent x̂
+    weights (physics_prior: σ = 1e-4 each) the predictive variance grows as
+    Σ_j σ² x̂_j² with the distance from the start: 177 mm from the origin it is 0.058 mm,
+    more than half of a 0.1 mm tolerance, for a machine whose DC gain is certain. We keep
+    the stated uncertainty on the *shape* of the weights (differences, which act on the
+    motion) and give their sum — a gain error, the only part a translation sees — the std
+    ``dc_std``: Σ' = P Σ P + dc_std² 11ᵀ/m on the x̂ block, P = I − 11ᵀ/m."""
+    cov = np.array(cov, float)
+    idx = np.arange(1, 2 + n2)
+    m = idx.size
+    one = np.full((m, 1), 1.0 / np.sqrt(m))
+    P = np.eye(m) - one @ one.T
+    full_P = np.eye(cov.shape[0])
+    full_P[np.ix_(idx, idx)] = P
+    out = full_P @ cov @ full_P.T
+    out[np.ix_(idx, idx)] += dc_std ** 2 * (one @ one.T) * m
+    return 0.5 * (out + out.T)
+
+
+def make_twin_predictor(profile, method: str, *, learn: bool):
+    """TwinPredictor of a profile for pb | dd | pidd."""
+    from ..twin.features import n_features, physics_prior
+    from ..twin.frf import impulse_response
+
+    tw = profile.twin
+    irs, mus, covs = [], [], []
+    d = n_features(tw.n2, tw.n3)
+    for ax in ("x", "y"):
+        irs.append(impulse_response(profile.axes[ax].frf, profile.ts_s, tw.n_taps,
+                                    method=tw.coef_variance))
+        if method == "dd":
+            mus.append(np.zeros(d))
+            covs.append(np.eye(d))
+            continue
+        prior = tw.priors.get(ax)
+        if prior is not None:
+            mus.append(np.array(prior.mu, float))
+            covs.append(np.array(prior.cov, float))
+        else:
+            m, c = physics_prior(tw.n2, tw.n3)
+            mus.append(m)
+            covs.append(c)
+    covs = [shift_invariant_cov(c, tw.n2) for c in covs] if method != "dd" else covs
+    return TwinPredictor(irs, tw.n2, tw.n3, tw.sigma_eps_mm ** 2, mus, covs,
+                         use_feature_var=(method != "dd"),
+                         learn=learn and method in ("dd", "pidd"))
+
+
+def _pieces(path):
+    """(s_end, dwell_samples_after, z_move) of the stretches between exact stops; a segment
+    that moves Z is its own stretch (planned as a rest-to-rest trapezoid)."""
+    out = []
+    n = path.n_segments
+    dz = np.abs(path.end_mm[:, 2] - path.start_mm[:, 2]) > 1e-9
+    for i in range(n):
+        boundary = path.stop_after[i] or i == n - 1 or dz[i] or (i + 1 < n and dz[i + 1])
+        if boundary:
+            out.append((float(path.s0_mm[i + 1]), float(path.dwell_after_s[i]), bool(dz[i])))
+    return out
+
+
+def _trapezoid_samples(s_a, s_b, vmax, amax, ts):
+    """Rest-to-rest trapezoid from s_a to s_b sampled at ts (excludes s_a, ends at s_b)."""
+    L = s_b - s_a
+    if L <= 0:
+        return np.zeros(0)
+    v = min(vmax, math.sqrt(L * amax))
+    t_acc = v / amax
+    d_acc = 0.5 * amax * t_acc ** 2
+    t_cru = (L - 2 * d_acc) / v
+    T = 2 * t_acc + t_cru
+    k = max(1, int(math.ceil(T / ts - 1e-9)))
+    t = np.arange(1, k + 1) * ts * (T / (k * ts))  # stretch so the last sample lands at T
+    s = np.where(t < t_acc, 0.5 * amax * t ** 2,
+                 np.where(t < t_acc + t_cru, d_acc + v * (t - t_acc),
+                          L - 0.5 * amax * np.maximum(T - t, 0.0) ** 2))
+    s[-1] = L
+    return s_a + np.maximum.accumulate(s)
+
+
+def plan_mpc(path, profile, predictor, *, method, tolerance_mm, stringency, vmax_mm_s=None,
+             amax_mm_s2=None, settings: MpcSettings | None = None, plant=None,
+             online: bool = False):
+    """Receding-window plan of the whole path with ``predictor``; with ``plant`` and
+    ``online`` the plant runs each committed window and the predictor observes it."""
+    vmax, axis_v, axis_a = effective_limits(profile, vmax_mm_s, amax_mm_s2)
+    ts = profile.ts_s
+    z = float(norm.ppf(stringency))
+    settings = settings or MpcSettings()
+    measured = []
+
+    def on_commit(k0, cmd):
+        if not (online and plant is not None):
+            return
+        # the plant is causal: run the whole committed history, read the new samples
+        full = np.asarray(planner.cmd_hist, float)
+        from ..vm.trajectory import Trajectory
+
+        tr = Trajectory(ts_s=ts, pos_mm=np.column_stack([full, np.zeros(len(full))]),
+                        e_mm=np.zeros(len(full)))
+        out = plant.simulate(tr)
+        meas = out.measured_mm[k0:, :2]
+        measured.append((k0, meas))
+        predictor.observe(k0, meas)
+
+    planner = MpcPlanner(path, predictor, ts_s=ts, vmax_mm_s=vmax,
+                         amax_mm_s2=np.array([axis_a["x"], axis_a["y"]]), tol_mm=tolerance_mm,
+                         z=z, settings=settings, axis_vmax_mm_s=axis_v, on_commit=on_commit)
+    t0 = time.perf_counter()
+    planner.start(0.0)
+    planner.hold(int(round(path.dwell_before_s / ts)))
+    for s_end, dwell_s, z_move in _pieces(path):
+        if z_move:
+            s_a = planner.s_hist[-1]
+            mid = 0.5 * (s_a + s_end)
+            t = np.abs(path.tangent(np.array([mid]))[0])
+            vz = min([vmax] + [axis_v[a] / t[i] for i, a in enumerate("xyz") if t[i] > 1e-12])
+            az = min([axis_a[a] / t[i] for i, a in enumerate("xyz") if t[i] > 1e-12])
+            planner._commit(_trapezoid_samples(s_a, s_end, vz, az, ts))
+            planner._prev = None
+        else:
+            planner.run_piece(s_end)
+        planner.hold(int(round(dwell_s / ts)))
+    res = planner.result()
+    info = dict(res.info)
+    info["compute_s"] = time.perf_counter() - t0
+    info["plan_time_s"] = (res.s_mm.size - 1) * ts
+    info["stringency"] = stringency
+    info["tolerance_mm"] = tolerance_mm
+    info["z"] = z
+    info["online"] = bool(online and plant is not None)
+    bound = info.pop("_pred_bound_mm", None)
+    if "_pred_mean_mm" in info:
+        mu = info.pop("_pred_mean_mm")
+        sd = info.pop("_pred_std_mm")
+        bnd = np.abs(mu) + z * sd
+        info["predicted_max_contour_error_mm"] = float(np.max(bnd)) if bnd.size else 0.0
+        info["predicted_p95_contour_error_mm"] = float(np.quantile(np.abs(mu), 0.95)) if mu.size else 0.0
+        del bound
+    pred_xy = getattr(predictor, "pred_mean", None)
+    if pred_xy is not None and len(pred_xy[0]) == res.s_mm.size:
+        info["_predicted_xy_mm"] = np.column_stack([np.asarray(pred_xy[0]), np.asarray(pred_xy[1])])
+    info.pop("_pred_xy_mm", None)
+    info["vmax_mm_s"] = vmax
+    info["amax_mm_s2"] = min(axis_a["x"], axis_a["y"])
+    return Schedule(ts_s=ts, s_mm=res.s_mm, method=method, info=info)
+
+
+def plan_schedule(method: str, path, profile, *, tolerance_mm: float, stringency: float,
+                  vmax_mm_s: float | None = None, amax_mm_s2: float | None = None,
+                  plant=None, online: bool = False, settings: MpcSettings | None = None,
+                  fw_limits=None, **opts) -> Schedule:
+    """The Schedule of ``method`` on ``path`` (see the module docstring).
+
+    Args:
+        method: kinematic | conservative | pb | dd | pidd | oracle.
+        path: gcode.path.Path.
+        profile: MachineProfile.
+        tolerance_mm: E_max, mm. stringency: η in (0, 1).
+        vmax_mm_s, amax_mm_s2: override the profile's V_max and X/Y A_max.
+        plant: vm.plant.Plant the method is tuned on (conservative), knows (oracle) or runs
+            on (online). Default: the profile's nominal plant (the FRF set's mean response).
+        online: learn from the plant's measurements window by window (pb never learns).
+        settings: MpcSettings (window length, horizon, solver, ...).
+    """
+    if method not in METHODS:
+        raise FeedOptError(f"unknown method {method!r}; use one of {', '.join(METHODS)}")
+    if not (0.5 <= stringency < 1.0):
+        raise FeedOptError(f"stringency {stringency} is outside [0.5, 1); pass e.g. 0.95")
+    if not tolerance_mm > 0:
+        raise FeedOptError(f"tolerance {tolerance_mm} mm must be positive; pass e.g. 0.1")
+    unknown = set(opts) - {"seed"}
+    if unknown:
+        raise FeedOptError(f"unknown option(s) {sorted(unknown)} for plan_schedule")
+    if method == "kinematic":
+        return plan_kinematic(path, profile, vmax_mm_s=vmax_mm_s, amax_mm_s2=amax_mm_s2,
+                              fw_limits=fw_limits)
+    if plant is None and method in ("conservative", "oracle"):
+        from ..vm.plant import Plant
+
+        plant = Plant(profile, seed=int(opts.get("seed", 0)), nominal=True)
+    if method == "conservative":
+        return plan_conservative(path, profile, tolerance_mm=tolerance_mm, stringency=stringency,
+                                 plant=plant, vmax_mm_s=vmax_mm_s, amax_mm_s2=amax_mm_s2,
+                                 fw_limits=fw_limits)
+    if method == "oracle":
+        predictor = PlantPredictor(plant)
+    else:
+        predictor = make_twin_predictor(profile, method, learn=online)
+    return plan_mpc(path, profile, predictor, method=method, tolerance_mm=tolerance_mm,
+                    stringency=stringency, vmax_mm_s=vmax_mm_s, amax_mm_s2=amax_mm_s2,
+                    settings=settings, plant=plant, online=online)
