@@ -162,3 +162,20 @@ def test_real_voron_recordings_drive_optimize(data_dir, tmp_path):
                                    "--machine", str(out), "-o", str(g), "--method", "kinematic"])
     assert res.exit_code == 0, res.output
     assert g.stat().st_size > 0
+
+
+def test_real_ender3_spectra_drive_optimize(data_dir, tmp_path):
+    m = data_dir / "measured"
+    out = tmp_path / "built.yaml"
+    res = CliRunner().invoke(cli, ["identify", "--x", str(m / "ender3_resonances_x_20210821_152037.csv"),
+                                   "--y", str(m / "ender3_resonances_y_20210630_230110.csv"),
+                                   "-o", str(out)])
+    assert res.exit_code == 0, res.output
+    prof = load_profile(out)
+    assert 36.0 <= prof.axes["y"].modes[0].freq_hz <= 39.0    # published Y 36-39 Hz
+    assert 40.0 <= prof.axes["x"].modes[0].freq_hz <= 59.0    # published X 40-59 Hz
+    g = tmp_path / "x.gcode"
+    res = CliRunner().invoke(cli, ["optimize", str(REPO / "sample_gcode" / "butterfly.gcode"),
+                                   "--machine", str(out), "-o", str(g), "--method", "kinematic"])
+    assert res.exit_code == 0, res.output
+    assert g.stat().st_size > 0
