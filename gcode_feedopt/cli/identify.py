@@ -31,7 +31,10 @@ POOR_FIT_RMS = 0.5
 def _raw_file(f, n_modes, excitation, n_sets):
     """One raw recording -> (fit, rows, labels, curve, provenance entry, warnings)."""
     t, acc = read_raw(f)
-    res = analyse_raw(t, acc, excitation=excitation, n_modes=n_modes, n_sets=n_sets)
+    try:
+        res = analyse_raw(t, acc, excitation=excitation, n_modes=n_modes, n_sets=n_sets)
+    except ProfileError as exc:
+        raise ProfileError(f"{f}: {exc}") from None
     name = pathlib.Path(f).name
     fq, band = res.h1.freq_hz, res.band
     curve = (name, fq[band], np.abs(res.h1.h[band]) / res.fit.scale, np.abs(res.fit.response(fq[band])))
