@@ -70,9 +70,6 @@ class Clock:
         return (1.0 - self.slope) * np.asarray(tau_s) - self.offset_s
 
 
-_DEBUG = False
-
-
 def estimate_clock(cmd_t, cmd_a, meas, fs_hz: float, freq_at, window_s: float = 2.0,
                    hop_s: float = 0.5, clock: Clock | None = None) -> Clock:
     """Offset and clock rate of ``meas`` (K,) at ``fs_hz`` against the reference ``(cmd_t, cmd_a)``.
@@ -132,8 +129,6 @@ def estimate_clock(cmd_t, cmd_a, meas, fs_hz: float, freq_at, window_s: float = 
         if len(centres) < 3:
             break
         b, a = np.polyfit(centres, lags, 1, w=np.asarray(weights))
-        if _DEBUG:
-            print(np.round(np.array(lags)[::8] * 1e3, 2), b, a)
         clock = Clock(clock.offset_s + (1 - clock.slope) * a,
                       1 - (1 - clock.slope) * (1 - b), 0.0)
     ref = np.interp(clock.cmd_time(tau), cmd_t, cmd_a, left=0.0, right=0.0)
