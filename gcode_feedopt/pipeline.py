@@ -9,6 +9,8 @@ import pathlib
 import time
 from dataclasses import dataclass
 
+import numpy as np
+
 from .errors import AlreadyProcessedError, FeedOptError, GCodeError
 from .gcode.path import build_path
 from .gcode.reader import read_file
@@ -77,6 +79,24 @@ def input_time_s(path, profile, opts: Options, fw_limits=None) -> float:
     return tr.duration_s
 
 
+def execute_check(out_program, profile, tol_mm: float) -> dict:
+    """End to end: the written G-code run by the firmware model and the profile's nominal
+    plant (no unknown effects): executed time and contour error, to set against the plan's
+    time and predicted contour error in the report."""
+    from .vm.metrics import contour_error_mm, evaluate
+    from .vm.plant import Plant
+
+    tr = firmware.execute(out_program, profile)
+    out = Plant(profile, seed=0, nominal=True).simulate(tr)
+    m = evaluate(tr, out.actual_mm, tol_mm)
+    eps = contour_error_mm(tr.pos_mm, out.actual_mm, tr.ts_s)
+    return {"plant": "nominal", "time_s": round(tr.duration_s, 4),
+            "within_fraction": round(m.within_fraction, 5),
+            "max_contour_error_mm": round(m.max_contour_error_mm, 5),
+            "p95_contour_error_mm": round(float(np.quantile(eps, 0.95)), 5),
+            "rms_gamma_mm": round(m.rms_gamma_mm, 6)}
+
+
 def optimize_file(in_path, out_path, profile, opts: Options) -> Report:
     """Optimize ``in_path`` and write ``out_path`` (may be the same file: in place)."""
     in_path = pathlib.Path(in_path)
@@ -112,6 +132,12 @@ def optimize_file(in_path, out_path, profile, opts: Options) -> Report:
     fw_in = firmware.estimate_time_s(program, profile)
     fw_out = firmware.estimate_time_s(out_program, profile)
     wall["firmware"] = time.perf_counter() - t0
+    executed = None
+    if sched.method != "kinematic":
+        t0 = time.perf_counter()
+        executed = execute_check(out_program, profile,
+                                 opts.tolerance_mm or profile.limits.tolerance_mm)
+        wall["execute"] = time.perf_counter() - t0
     if not opts.dry_run:
         t0 = time.perf_counter()
         atomic_write(out_path, result.data)
@@ -140,7 +166,10 @@ def optimize_file(in_path, out_path, profile, opts: Options) -> Report:
         predicted_max_contour_error_mm=info.get("predicted_max_contour_error_mm"),
         predicted_p95_contour_error_mm=info.get("predicted_p95_contour_error_mm"),
         stage_wall_s={k: round(v, 4) for k, v in wall.items()},
-        extra={"input_time_same_limits_s": t_in})
+        extra={"input_time_same_limits_s": t_in,
+               **({"executed": executed} if executed is not None else {}),
+               **{k: info[k] for k in ("window_status", "fallback_windows", "relaxed_windows",
+                                        "compute_s", "solver_s") if k in info}})
     if fw_out > fw_in:
         rep.notes.append("the firmware runs the original faster than our output: the slicer's "
                          "feeds exceed the profile's limits somewhere (see --vmax)")

@@ -67,6 +67,12 @@ class Report:
         else:
             lines.append(f"  predicted contour error: n/a ({self.method} plans kinematic limits only; "
                          f"tolerance {self.tolerance_mm:g} mm not checked)")
+        ex = (self.extra or {}).get("executed")
+        if ex:
+            lines.append(f"  executed (firmware model + nominal plant): {ex['time_s']:.2f} s vs plan "
+                         f"{self.plan_time_s:.2f} s; contour error worst {ex['max_contour_error_mm']:.3f} mm, "
+                         f"95th percentile {ex['p95_contour_error_mm']:.3f} mm, "
+                         f"{ex['within_fraction']:.1%} within tolerance")
         for n in self.notes:
             lines.append(f"  note: {n}")
         return "\n".join(lines)
