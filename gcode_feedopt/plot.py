@@ -92,6 +92,12 @@ def plot_compare(runs, out_png, *, tolerance_mm: float, title: str = "") -> None
             axes[4].plot(t, np.hypot(s["pred_err_x_mm"], s["pred_err_y_mm"]), lw=0.6)
         else:
             axes[4].plot([], [])
+    # a data-only twin starts from a zero prior (it predicts nothing until it has learned):
+    # scale the prediction panel to the 99th percentile so the others stay readable
+    tops = [np.quantile(np.hypot(r.series["pred_err_x_mm"], r.series["pred_err_y_mm"]), 0.99)
+            for r in runs if "pred_err_x_mm" in r.series]
+    if tops and max(tops) > 0:
+        axes[4].set_ylim(0, 1.2 * max(tops))
     axes[2].axhline(tolerance_mm, color="k", ls="--", lw=0.8)
     axes[0].set_ylabel("feed (mm/s)")
     axes[1].set_ylabel("|acc| (m/s²)")

@@ -395,6 +395,8 @@ class MpcPlanner:
             "unconverged_windows": st["unconverged"],
             "horizon_samples": self.n, "n_window": self.st.n_window, "n_brake": self.n_brake,
             "n_hold": self.st.n_hold,
+            "lp_failed": st.get("lp_failed", 0), "lp_infeasible": st.get("lp_infeasible", 0),
+            "_solve_times_s": list(st["solve_times_s"]),
         }
         if st["pred_mean_mm"]:
             info["_pred_mean_mm"] = np.concatenate(st["pred_mean_mm"])
