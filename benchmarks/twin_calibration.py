@@ -39,7 +39,8 @@ def main():
         x_cmd = pos[:, k]
         rng = np.random.default_rng(11 + k)
         H = draw_impulse_responses(prof.axes[axis].frf, prof.ts_s, prof.twin.n_taps, rng,
-                                   max(a.plants_nolearn, a.plants_learn))
+                                   max(a.plants_nolearn, a.plants_learn),
+                                   method=prof.twin.coef_variance)
 
         def meas(h):
             xt = x_cmd[0] + oaconvolve(x_cmd - x_cmd[0], h)[:x_cmd.size]
