@@ -78,18 +78,27 @@ def test_sampled_mode_states_ts_and_trajectory_csv_rows_per_ts(src, tmp_path):
     assert np.allclose(np.diff(t), 0.002, atol=1e-6)
 
 
-@pytest.mark.parametrize("method", ["conservative", "pb", "dd", "pidd", "oracle"])
-def test_twin_methods_without_optimizer_fail_in_one_line(src, method):
-    try:
-        import gcode_feedopt.optimize  # noqa: F401
-    except ImportError:
-        pass
-    else:
-        pytest.skip("the optimizer is in this build")
+@pytest.mark.parametrize("method", ["conservative", "pb", "pidd", "oracle"])
+def test_twin_methods_write_verified_output(src, tmp_path, method):
     before = src.read_bytes()
-    res = _run([src, "--machine", "ender3pro", "--method", method])
-    assert res.exit_code != 0
-    assert f"method '{method}' is not available" in res.output
+    rep = tmp_path / "r.json"
+    res = _run([src, "-o", tmp_path / "o.gcode", "--machine", "ender3pro", "--method", method,
+                "--report", rep])
+    assert res.exit_code == 0, res.output
+    assert json.loads(rep.read_text())["method"] == method
+    assert src.read_bytes() == before
+
+
+def test_dd_offline_is_refused_with_the_alternative(src):
+    res = _run([src, "--machine", "ender3pro", "--method", "dd"])
+    assert res.exit_code == 2 and "use --method pidd" in res.output
+
+
+def test_unreachable_tolerance_fails_in_one_line_and_leaves_the_input(src):
+    before = src.read_bytes()
+    res = _run([src, "--machine", "ender3pro", "--method", "pidd", "--tolerance", "0.005"])
+    assert res.exit_code == 2
+    assert "--tolerance above" in res.output and len(res.output.strip().splitlines()) == 1
     assert src.read_bytes() == before
 
 

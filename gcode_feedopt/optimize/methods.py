@@ -202,6 +202,20 @@ def plan_mpc(path, profile, predictor, *, method, tolerance_mm, stringency, vmax
     z = float(norm.ppf(stringency))
     settings = settings or MpcSettings()
     measured = []
+    learning = online and plant is not None and getattr(predictor, "learn", False)
+    if method == "dd" and not learning:
+        raise FeedOptError("method dd learns from data only (zero prior) and has no data offline; "
+                           "use --method pidd, or run dd online on the virtual machine with "
+                           "`gcode-feedopt compare`")
+    if hasattr(predictor, "s2") and not learning:
+        # what the twin can promise at rest: noise and bias alone (the contour error of a
+        # machine standing still); below it every window would be "relaxed"
+        floor = z * max(math.sqrt(predictor.s2 + float(c[0, 0])) for c in predictor.cov)
+        if tolerance_mm <= 1.05 * floor:
+            raise FeedOptError(
+                f"tolerance {tolerance_mm:g} mm is below what the twin can promise at stringency "
+                f"{stringency:g}: {floor:.3f} mm even at rest (sensor noise σ_ε and bias of "
+                f"{profile.name}); use --tolerance above {1.2 * floor:.3f} or a lower --stringency")
 
     def on_commit(k0, cmd):
         if not (online and plant is not None):

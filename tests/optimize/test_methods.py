@@ -181,3 +181,11 @@ def test_compare_cli_prints_table_and_writes_json_and_png(tmp_path, butterfly_pi
     bad = subprocess.run([sys.executable, "-m", "gcode_feedopt", "compare", str(src), "-m",
                           "ender3pro", "--methods", "fast"], capture_output=True, text=True)
     assert bad.returncode == 2 and "unknown fast" in bad.stderr
+
+
+def test_tolerance_below_the_twin_noise_floor_is_refused_with_the_fix(ender, butterfly_piece):
+    from gcode_feedopt.errors import FeedOptError
+
+    _, path = butterfly_piece
+    with pytest.raises(FeedOptError, match="--tolerance above"):
+        plan_schedule("pidd", path, ender, tolerance_mm=0.01, stringency=0.95)
