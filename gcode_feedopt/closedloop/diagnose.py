@@ -17,7 +17,7 @@ Method (pure numerics on arrays; the CLI ``gcode-feedopt diagnose`` reads the fi
    Every scan and every weight is fitted on the **first part** of the log only
    (``fit_fraction``); candidates are ranked by the residual sum of squares they explain.
 3. **Decision.** The best candidate is named when it explains at least ``MIN_EXPLAINED`` of the
-   fit-part residual, its chi-square-like gain ΔSS/(SS_after/N) exceeds ``MIN_SCORE`` (many
+   fit-part residual and at least ``MIN_EFFECT_RMS_MM`` RMS, its chi-square-like gain ΔSS/(SS_after/N) exceeds ``MIN_SCORE`` (many
    scanned parameters make a few tens likely by chance on pure noise) and it lowers the
    held-out RMS by ``MIN_HOLDOUT_GAIN``; otherwise ``none``. Up to ``MAX_EFFECTS`` effects are
    taken greedily (the next one on what the first leaves).
@@ -45,6 +45,9 @@ MIN_SCORE = 200.0
 #: Held-out RMS must fall by at least this fraction for an effect to be named.
 MIN_HOLDOUT_GAIN = 0.1
 MAX_EFFECTS = 2
+#: An effect must explain at least this RMS on the fit part to be named, mm (2 µm: 1/50 of a
+#: printer's 0.1 mm tolerance; a drawn plant's difference from the twin's mean is about this).
+MIN_EFFECT_RMS_MM = 0.002
 FIT_FRACTION = 0.6
 
 
@@ -294,7 +297,8 @@ def diagnose_arrays(cmd_mm: np.ndarray, meas_mm: np.ndarray, ts_s: float, impuls
         if round_ == 0:
             all_cands = cands
         best = cands[0]
-        if best.fraction < MIN_EXPLAINED or best.score < MIN_SCORE:
+        if (best.fraction < MIN_EXPLAINED or best.score < MIN_SCORE
+                or np.sqrt(best.explained_ss / nfit) < MIN_EFFECT_RMS_MM):
             break
         ax = best.axis
         # refit the baseline and the named effects jointly on the fit part

@@ -1,0 +1,57 @@
+"""``gcode-feedopt diagnose``: what the twin gets wrong on a log, its cause, the gain of the
+extended model on held-out data (closedloop.diagnose)."""
+
+from __future__ import annotations
+
+import json
+
+import click
+
+
+@click.command("diagnose")
+@click.argument("log_path", metavar="LOG", type=click.Path(exists=True, dir_okay=False))
+@click.option("--machine", "-m", required=True, help="Profile name (ender3pro, nomad3) or YAML path.")
+@click.option("--json", "json_path", type=click.Path(dir_okay=False),
+              help="Write the diagnosis as JSON here ('-' for stdout).")
+@click.option("--plot", "plot_path", type=click.Path(dir_okay=False),
+              help="PNG of the residual before/after and its spectrum.")
+@click.option("--fit-fraction", type=click.FloatRange(0.1, 0.9), default=0.6, show_default=True,
+              help="Fraction of the log (from its start) the extension is fitted on; the rest is held out.")
+def diagnose(log_path, machine, json_path, plot_path, fit_fraction):
+    """Diagnose LOG (an encoder log from `simulate --log`, or a Klipper raw accelerometer
+    recording of a resonance test) against the twin of --machine.
+
+    \b
+    gcode-feedopt diagnose --machine ender3pro part.csv --json d.json --plot d.png
+    """
+    from ..closedloop.diagnose import diagnose_arrays, nominal_impulse
+    from ..closedloop.logs import load_log
+    from ..profile import load_profile
+
+    profile = load_profile(machine)
+    log = load_log(log_path, profile)
+    d = diagnose_arrays(log.cmd_mm, log.pos_mm, log.ts_s, nominal_impulse(profile),
+                        fit_fraction=fit_fraction)
+    out = d.to_dict()
+    out["log"] = {"path": log.source, "kind": log.kind, "samples": int(log.cmd_mm.shape[0]),
+                  "ts_s": log.ts_s, **log.info}
+    rr, ho = d.residual_rms_mm, d.holdout_rms_mm
+    click.echo(f"residual RMS  x {rr['x'] * 1e3:.2f} µm   y {rr['y'] * 1e3:.2f} µm")
+    for e in d.effects:
+        params = ", ".join(f"{k}={v:.5g}" if isinstance(v, float) else f"{k}={v}"
+                           for k, v in e["params"].items())
+        click.echo(f"effect        {e['kind']} on {e['axis']} ({params}) "
+                   f"confidence {e['confidence']:.2f}")
+    for ax in ("x", "y"):
+        click.echo(f"held-out RMS  {ax}: {ho['before'][ax] * 1e3:.2f} -> {ho['after'][ax] * 1e3:.2f} µm")
+    if json_path:
+        text = json.dumps(out, indent=2)
+        if json_path == "-":
+            click.echo(text)
+        else:
+            with open(json_path, "w") as f:
+                f.write(text + "\n")
+    if plot_path:
+        from ..closedloop.diagnose_plot import plot_diagnosis
+
+        plot_diagnosis(plot_path, d, log.ts_s, title=str(log_path))

@@ -1,0 +1,234 @@
+"""Logs the closed loop learns from: encoder logs and Klipper raw accelerometer recordings.
+
+``MotionLog`` is the common form: commanded and measured X, Y (Z) positions on one uniform
+grid at the profile's Ts. ``load_log(path, profile)`` reads either kind and refuses a bad one
+with a one-line ``LogError`` (what, where, value, limit, fix):
+
+- **wrong machine**: Ts differs from the profile's, or the twin's residual is implausible
+  (RMS above ``MAX_RESIDUAL_RATIO`` of the motion's own RMS, e.g. a log of another printer
+  whose dynamics the profile does not describe);
+- **truncated**: shorter than the twin's impulse response (``n_taps``·Ts) or still moving
+  at the last sample (the end of the job is missing);
+- **no motion**: commanded range below ``MIN_TRAVEL_MM`` on every axis;
+- **clipped**: the measured signal sits flat at its extreme for ``CLIP_RUN`` samples or more
+  while the command moves ``CLIP_MARGIN_MM`` past it (encoder), or the accelerometer is at full scale (raw).
+
+Encoder logs share one clock between command and measurement (one row each), so they need
+no alignment; shifting them would hide a real delay. A raw accelerometer file has its own
+clock: the commanded motion (Klipper's resonance-test excitation, ``identify.excitation``) is
+aligned to it by cross-correlation, offset and clock rate (``identify.raw.analyse_raw`` →
+``identify.h1.estimate_clock``).
+
+**Acceleration → displacement** (paper Sec. 6.1.1): a Luenberger observer on the double
+integrator x'' = a, corrected by the nominal model's position x̂ = h̄ * x_cmd:
+
+    ẋ_o = v_o + l1 (x̂ − x_o),   v̇_o = a + l2 (x̂ − x_o),   l1 = 2ω_o, l2 = ω_o²
+
+Its error dynamics are a critically damped pair at ω_o = 2π·``OBSERVER_HZ`` (15 Hz as in the
+paper). In transfer-function form X_o = F(s) X̂ + A(s)/(s + ω_o)², F = (2ω_o s + ω_o²)/(s + ω_o)²:
+below ~15 Hz the position is the model's, above it the accelerometer's — so a diagnosis on
+observed data can only see what the model gets wrong **above** the observer frequency.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import signal
+
+from ..errors import LogError
+
+#: Observer bandwidth, Hz (paper Sec. 6.1.1).
+OBSERVER_HZ = 15.0
+#: Below this commanded range on every axis a log has "no motion", mm.
+MIN_TRAVEL_MM = 1.0
+#: A twin residual above this fraction of the motion's RMS means the wrong machine.
+MAX_RESIDUAL_RATIO = 0.2
+#: Samples flat at the extreme that make a measured channel "clipped".
+CLIP_RUN = 5
+#: The command must be this far beyond a flat measured extreme for it to count as clipping, mm.
+CLIP_MARGIN_MM = 0.5
+#: A log still moving faster than this at its last sample is truncated, mm/s.
+END_SPEED_MM_S = 1.0
+
+
+@dataclass(frozen=True)
+class MotionLog:
+    """Commanded and measured positions on one grid.
+
+    Attributes:
+        ts_s: sample period. cmd_mm, pos_mm: (K, 3) X, Y, Z, mm.
+        source: file name. kind: "encoder" | "klipper_raw".
+        info: how it was read (alignment, observer, direction, ...).
+    """
+
+    ts_s: float
+    cmd_mm: np.ndarray
+    pos_mm: np.ndarray
+    source: str
+    kind: str
+    info: dict = field(default_factory=dict)
+
+
+def observer_position(x_model: np.ndarray, accel: np.ndarray, fs_hz: float,
+                      f_o_hz: float = OBSERVER_HZ) -> np.ndarray:
+    """Luenberger observer (module docstring): model position + measured acceleration ->
+    position estimate, (K,) each at ``fs_hz``. Discretised by the bilinear transform; the
+    start is initialised at the model's first value."""
+    w = 2 * np.pi * f_o_hz
+    den = [1.0, 2 * w, w * w]
+    bF, aF = signal.bilinear([2 * w, w * w], den, fs_hz)
+    bA, aA = signal.bilinear([1.0], den, fs_hz)
+    x0 = float(x_model[0])
+    xf = signal.lfilter(bF, aF, np.asarray(x_model, float) - x0)
+    xa = signal.lfilter(bA, aA, np.asarray(accel, float))
+    return x0 + xf + xa
+
+
+def check_log(log: MotionLog, profile, *, predicted_mm: np.ndarray | None = None) -> None:
+    """Raise LogError if the log is from the wrong machine, truncated, motionless or clipped."""
+    name = log.source
+    if not np.isclose(log.ts_s, profile.ts_s, rtol=1e-3):
+        raise LogError(f"{name}: sample period {log.ts_s:.6g} s differs from machine "
+                       f"{profile.name!r} Ts={profile.ts_s:g} s; wrong machine? pass the "
+                       f"profile the log was recorded with")
+    K = log.cmd_mm.shape[0]
+    n_min = profile.twin.n_taps
+    if K < n_min:
+        raise LogError(f"{name}: {K} samples ({K * log.ts_s:.2f} s) is shorter than the twin's "
+                       f"impulse response ({n_min} samples); truncated? log the whole job")
+    travel = np.ptp(log.cmd_mm[:, :2], axis=0)
+    if np.all(travel < MIN_TRAVEL_MM):
+        raise LogError(f"{name}: no motion: commanded X/Y range {travel[0]:.3g}/{travel[1]:.3g} mm "
+                       f"(< {MIN_TRAVEL_MM} mm); log a print, not an idle machine")
+    if log.kind == "encoder":
+        v_end = np.abs(log.cmd_mm[-1, :2] - log.cmd_mm[-2, :2]) / log.ts_s
+        if np.any(v_end > END_SPEED_MM_S):
+            raise LogError(f"{name}: truncated: the command still moves at "
+                           f"{float(np.max(v_end)):.1f} mm/s at the last sample "
+                           f"(t={K * log.ts_s:.2f} s); log until the machine stops")
+        for i, ax in enumerate("xy"):
+            if travel[i] < MIN_TRAVEL_MM:
+                continue
+            m = log.pos_mm[:, i]
+            moving = np.abs(np.gradient(log.cmd_mm[:, i])) > 1e-9
+            c = log.cmd_mm[:, i]
+            for extreme, beyond in ((m.max(), c - m.max()), (m.min(), m.min() - c)):
+                # flat at the extreme while the command is well past it: a saturated
+                # sensor (a dead band, e.g. backlash, stays within its width of the command)
+                at = (m == extreme) & moving & (beyond > CLIP_MARGIN_MM)
+                run = _longest_run(at)
+                if run >= CLIP_RUN:
+                    raise LogError(f"{name}: measured {ax} is clipped: {run} samples flat at "
+                                   f"{extreme:.6g} mm while the command moves (limit "
+                                   f"{CLIP_RUN}); check the encoder range")
+    if predicted_mm is not None:
+        for i, ax in enumerate("xy"):
+            if travel[i] < MIN_TRAVEL_MM:
+                continue
+            motion = float(np.std(log.cmd_mm[:, i]))
+            r = float(np.sqrt(np.mean((log.pos_mm[:, i] - predicted_mm[:, i]) ** 2)))
+            if r > MAX_RESIDUAL_RATIO * motion:
+                raise LogError(f"{name}: the twin of {profile.name!r} misses axis {ax} by "
+                               f"{r:.3g} mm RMS, {r / motion:.0%} of the motion (limit "
+                               f"{MAX_RESIDUAL_RATIO:.0%}); wrong machine or a broken sensor")
+
+
+def _longest_run(mask: np.ndarray) -> int:
+    if not mask.any():
+        return 0
+    d = np.diff(np.concatenate(([0], mask.astype(np.int8), [0])))
+    starts, ends = np.flatnonzero(d == 1), np.flatnonzero(d == -1)
+    return int(np.max(ends - starts))
+
+
+def read_encoder(path) -> MotionLog:
+    from ..vm.log import read_log
+
+    log = read_log(path)
+    return MotionLog(ts_s=log.ts_s, cmd_mm=log.cmd_mm, pos_mm=log.pos_mm,
+                     source=os.fspath(path), kind="encoder", info={"aligned": "shared clock"})
+
+
+def read_klipper_raw(path, profile, *, n_modes: int = 3) -> MotionLog:
+    """A Klipper raw accelerometer recording of a resonance test, with its commanded motion
+    (the detected excitation) aligned by cross-correlation and turned into positions.
+
+    The motion is along one direction (``analyse_raw``'s ``direction``); it is logged as axis
+    X (Y at rest). Command position = double integral of the commanded acceleration
+    (piecewise constant, so exact), measured position = observer(model, measured accel).
+    The model of the observer is the profile's X twin mean."""
+    from ..errors import ProfileError
+    from ..identify.raw import analyse_raw, check_clipping, resample_uniform
+    from ..identify.readers import read_raw
+    from ..identify.excitation import sampled_accel
+    from .diagnose import nominal_impulse
+    from ..vm.plant import respond
+
+    name = os.fspath(path)
+    try:
+        t, acc = read_raw(name)
+        clip = check_clipping(acc)
+        if clip:
+            raise LogError(f"{name}: {clip[0]}")
+        res = analyse_raw(t, acc, n_modes=n_modes)
+    except ProfileError as exc:
+        raise LogError(str(exc)) from None
+    fs, acc_u = resample_uniform(t, acc)
+    sos = signal.butter(2, [3.0, 0.45 * fs], btype="bandpass", fs=fs, output="sos")
+    meas_a = signal.sosfiltfilt(sos, acc_u - acc_u.mean(0), axis=0) @ res.direction
+    # commanded acceleration on the recording's clock
+    cmd_t, cmd_a = sampled_accel(res.excitation, fs)
+    tau = np.arange(meas_a.size) / fs
+    a_cmd = np.interp(res.clock.cmd_time(tau), cmd_t, cmd_a, left=0.0, right=0.0)
+    # the direction's sign is arbitrary: take the one that correlates positively
+    if float(a_cmd @ meas_a) < 0:
+        meas_a = -meas_a
+    # to the profile's grid
+    ts = profile.ts_s
+    grid = np.arange(0.0, tau[-1], ts)
+    a_cmd_g = np.interp(grid, tau, a_cmd)
+    meas_g = np.interp(grid, tau, meas_a)
+    # command position: double integration (trapezoid) of the commanded acceleration with its
+    # drift removed (the test returns to its start in every half-period)
+    v = np.concatenate(([0.0], np.cumsum(0.5 * (a_cmd_g[1:] + a_cmd_g[:-1]) * ts)))
+    v = signal.detrend(v, type="linear") if v.size > 2 else v
+    x = np.concatenate(([0.0], np.cumsum(0.5 * (v[1:] + v[:-1]) * ts)))
+    x = signal.sosfiltfilt(signal.butter(2, 1.0, btype="highpass", fs=1 / ts, output="sos"), x)
+    h = nominal_impulse(profile)["x"][0]
+    x_model = respond(x, h)
+    pos = observer_position(x_model, meas_g, 1.0 / ts)
+    zeros = np.zeros(grid.size)
+    return MotionLog(ts_s=ts, cmd_mm=np.column_stack([x, zeros, zeros]),
+                     pos_mm=np.column_stack([pos, zeros, zeros]), source=name, kind="klipper_raw",
+                     info={"direction": res.direction.tolist(), "generator": res.excitation.generator,
+                           "clock_offset_s": float(res.clock.offset_s),
+                           "observer_hz": OBSERVER_HZ, "fs_hz": float(fs),
+                           "warnings": list(res.warnings)})
+
+
+def load_log(path, profile, *, check: bool = True) -> MotionLog:
+    """Read an encoder log or a Klipper raw recording (by its header) and check it."""
+    name = os.fspath(path)
+    try:
+        with open(name, "rb") as f:
+            head = f.readline().decode("ascii", "replace").strip()
+    except OSError as exc:
+        raise LogError(f"{name}: cannot read the log ({exc.strerror})") from None
+    if head.startswith("#time"):
+        log = read_klipper_raw(name, profile)
+    else:
+        log = read_encoder(name)
+    if check:
+        from .diagnose import nominal_impulse
+        from ..vm.plant import respond
+
+        pred = None
+        if log.kind == "encoder" and np.isclose(log.ts_s, profile.ts_s, rtol=1e-3) \
+                and log.cmd_mm.shape[0] >= profile.twin.n_taps:
+            imp = nominal_impulse(profile)
+            pred = np.column_stack([respond(log.cmd_mm[:, i], imp[ax][0]) for i, ax in enumerate("xy")])
+        check_log(log, profile, predicted_mm=pred)
+    return log
