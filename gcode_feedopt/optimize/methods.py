@@ -257,14 +257,12 @@ def plan_mpc(path, profile, predictor, *, method, tolerance_mm, stringency, vmax
     info["tolerance_mm"] = tolerance_mm
     info["z"] = z
     info["online"] = bool(online and plant is not None)
-    bound = info.pop("_pred_bound_mm", None)
     if "_pred_mean_mm" in info:
         mu = info.pop("_pred_mean_mm")
         sd = info.pop("_pred_std_mm")
         bnd = np.abs(mu) + z * sd
         info["predicted_max_contour_error_mm"] = float(np.max(bnd)) if bnd.size else 0.0
         info["predicted_p95_contour_error_mm"] = float(np.quantile(np.abs(mu), 0.95)) if mu.size else 0.0
-        del bound
     pred_xy = getattr(predictor, "pred_mean", None)
     if pred_xy is not None and len(pred_xy[0]) == res.s_mm.size:
         info["_predicted_xy_mm"] = np.column_stack([np.asarray(pred_xy[0]), np.asarray(pred_xy[1])])
