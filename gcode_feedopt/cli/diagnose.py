@@ -17,12 +17,16 @@ import click
               help="PNG of the residual before/after and its spectrum.")
 @click.option("--fit-fraction", type=click.FloatRange(0.1, 0.9), default=0.6, show_default=True,
               help="Fraction of the log (from its start) the extension is fitted on; the rest is held out.")
-def diagnose(log_path, machine, json_path, plot_path, fit_fraction):
+@click.option("--output", "-o", "out_profile", type=click.Path(dir_okay=False),
+              help="Write the extended profile here (YAML): delay/gain/resonance_shift folded "
+                   "into the FRFs, every named effect recorded in provenance.closed_loop.")
+def diagnose(log_path, machine, json_path, plot_path, fit_fraction, out_profile):
     """Diagnose LOG (an encoder log from `simulate --log`, or a Klipper raw accelerometer
     recording of a resonance test) against the twin of --machine.
 
     \b
     gcode-feedopt diagnose --machine ender3pro part.csv --json d.json --plot d.png
+    gcode-feedopt diagnose -m ender3pro part.csv -o extended.yaml   (then optimize -m extended.yaml)
     """
     from ..closedloop.diagnose import diagnose_arrays, nominal_impulse
     from ..closedloop.logs import load_log
@@ -51,6 +55,16 @@ def diagnose(log_path, machine, json_path, plot_path, fit_fraction):
         else:
             with open(json_path, "w") as f:
                 f.write(text + "\n")
+    if out_profile:
+        import dataclasses
+
+        from ..closedloop.extend import extend_profile
+        from ..profile.io import save_profile
+
+        ext = extend_profile(profile, d.effects, source=str(log_path))
+        ext = dataclasses.replace(ext, name=ext.name + "-extended")
+        save_profile(ext, out_profile)
+        click.echo(f"wrote {out_profile}")
     if plot_path:
         from ..closedloop.diagnose_plot import plot_diagnosis
 

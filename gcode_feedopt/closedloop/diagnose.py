@@ -45,9 +45,9 @@ MIN_SCORE = 200.0
 #: Held-out RMS must fall by at least this fraction for an effect to be named.
 MIN_HOLDOUT_GAIN = 0.1
 MAX_EFFECTS = 2
-#: An effect must explain at least this RMS on the fit part to be named, mm (2 µm: 1/50 of a
+#: An effect must explain at least this RMS on the fit part to be named, mm (1 µm: 1/100 of a
 #: printer's 0.1 mm tolerance; a drawn plant's difference from the twin's mean is about this).
-MIN_EFFECT_RMS_MM = 0.002
+MIN_EFFECT_RMS_MM = 0.001
 FIT_FRACTION = 0.6
 
 

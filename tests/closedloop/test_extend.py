@@ -1,0 +1,63 @@
+"""The extended model goes into a profile: FRF rows reproduce the linear effect; saved and
+loaded back exactly; the diagnose CLI writes it."""
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from gcode_feedopt.cli import cli
+from gcode_feedopt.closedloop.diagnose import nominal_impulse
+from gcode_feedopt.closedloop.extend import extend_profile
+from gcode_feedopt.profile import load_profile
+from gcode_feedopt.profile.io import save_profile
+from gcode_feedopt.vm import effects as fx
+from gcode_feedopt.vm.plant import respond
+
+P = load_profile("ender3pro")
+CMD = 10 + 0.1 * np.cumsum(np.r_[np.zeros(100), np.ones(200), np.zeros(300)])
+
+
+@pytest.mark.parametrize("effect, truth, limit", [
+    ({"kind": "delay", "axis": "x", "params": {"delay_s": 0.008}},
+     lambda h: fx.delay_signal(respond(CMD, h), 0.008, P.ts_s), 0.005),
+    ({"kind": "gain", "axis": "x", "params": {"scale": 1.02}},
+     lambda h: CMD[0] + 1.02 * (respond(CMD, h) - CMD[0]), 1e-9),
+    ({"kind": "resonance_shift", "axis": "x", "params": {"frequency_hz": 32.0}},
+     lambda h: respond(CMD, fx.rescale_impulse_response(h, 32.0 / fx.dominant_mode_hz(h, P.ts_s))), 0.25),
+])
+def test_linear_effect_folded_into_frf(effect, truth, limit):
+    h0 = nominal_impulse(P)["x"][0]
+    ext = extend_profile(P, [effect])
+    from gcode_feedopt.twin.frf import impulse_response
+
+    hm = impulse_response(ext.axes["x"].frf, P.ts_s, P.twin.n_taps, method=P.twin.coef_variance).mean
+    y = truth(h0)
+    before = np.max(np.abs(respond(CMD, h0) - y))
+    after = np.max(np.abs(respond(CMD, hm) - y))
+    assert after <= limit * before
+    rec = ext.provenance["closed_loop"][-1]["folded_into_frf"]
+    assert rec[0]["kind"] == effect["kind"]
+
+
+def test_extended_profile_round_trip(tmp_path):
+    ext = extend_profile(P, [{"kind": "delay", "axis": "y", "params": {"delay_s": 0.004}},
+                             {"kind": "backlash", "axis": "x", "params": {"magnitude_mm": 0.05}}],
+                         source="test")
+    path = save_profile(ext, tmp_path / "ext.yaml")
+    back = load_profile(path)
+    np.testing.assert_allclose(back.axes["y"].frf.response, ext.axes["y"].frf.response, rtol=1e-9)
+    assert back.provenance["closed_loop"] == ext.provenance["closed_loop"]
+    assert back.provenance["closed_loop"][0]["recorded_not_modelled"][0]["kind"] == "backlash"
+
+
+def test_diagnose_cli_writes_profile(tmp_path):
+    from .test_logs import make_log
+
+    p = tmp_path / "d.csv"
+    make_log(p, effects=[fx.Delay("x", delay_s=0.006), fx.SensorNoise("x", std_mm=0.001)])
+    out = tmp_path / "ext.yaml"
+    r = CliRunner().invoke(cli, ["diagnose", "-m", "ender3pro", str(p), "-o", str(out)])
+    assert r.exit_code == 0, r.output
+    ext = load_profile(out)
+    rec = ext.provenance["closed_loop"][-1]["folded_into_frf"][0]
+    assert rec["kind"] == "delay" and abs(rec["params"]["delay_s"] - 0.006) < 0.00012
