@@ -1,0 +1,48 @@
+"""``gcode-feedopt learn``: bounded Bayesian update of the twin's priors from logs
+(closedloop.learn)."""
+
+from __future__ import annotations
+
+import click
+
+
+@click.command("learn")
+@click.argument("logs", metavar="LOG...", nargs=-1, required=True,
+                type=click.Path(exists=True, dir_okay=False))
+@click.option("--machine", "-m", required=True, help="Profile name (ender3pro, nomad3) or YAML path.")
+@click.option("--output", "-o", "out_path", required=True, type=click.Path(dir_okay=False),
+              help="Updated profile (YAML); its twin.priors record what was learned from what.")
+@click.option("--skip-bad", is_flag=True, help="Skip a refused log (one line on stderr) instead of stopping.")
+def learn(logs, machine, out_path, skip_bad):
+    """Update the twin priors of --machine from encoder logs of earlier prints.
+
+    \b
+    gcode-feedopt learn --machine ender3pro part1.csv part2.csv -o updated.yaml
+    """
+    from ..closedloop.learn import learn_logs
+    from ..closedloop.logs import load_log
+    from ..errors import LogError
+    from ..profile import load_profile
+    from ..profile.io import save_profile
+
+    profile = load_profile(machine)
+    n_ok = 0
+    for path in logs:
+        try:
+            log = load_log(path, profile)
+            profile, records = learn_logs(profile, [log])
+        except LogError as exc:
+            if not skip_bad:
+                raise
+            click.echo(f"gcode-feedopt: skipped: {exc}", err=True)
+            continue
+        n_ok += 1
+        for r in records:
+            pr = r["prediction_rms_mm"]
+            click.echo(f"{path}: {r['axis']}: prediction RMS {pr['before'] * 1e3:.1f} -> "
+                       f"{pr['after'] * 1e3:.1f} µm (step x{r['step_scale']:.3g}"
+                       f"{', bounded' if r['step_clipped'] else ''})")
+    if n_ok == 0:
+        raise LogError("no log was learned from; nothing written")
+    save_profile(profile, out_path)
+    click.echo(f"wrote {out_path} ({n_ok} log(s))")

@@ -1,0 +1,76 @@
+"""learn: bounded Bayesian update of the twin priors, provenance, refusal."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from gcode_feedopt.cli import cli
+from gcode_feedopt.closedloop import learn as L
+from gcode_feedopt.closedloop.logs import load_log
+from gcode_feedopt.errors import LogError
+from gcode_feedopt.profile import load_profile
+from gcode_feedopt.twin.model import axis_twin
+from gcode_feedopt.vm import effects as fx
+
+from .test_logs import make_log, write
+
+P = load_profile("ender3pro")
+
+
+def test_learn_records_provenance_and_round_trips(tmp_path):
+    p = tmp_path / "a.csv"
+    make_log(p, effects=[fx.Delay("x", delay_s=0.003), fx.SensorNoise("x", std_mm=0.001)])
+    prof, recs = L.learn_logs(P, [load_log(p, P)])
+    assert {r["axis"] for r in recs} == {"x", "y"}
+    for ax in ("x", "y"):
+        rec = prof.twin.priors[ax].learned_from[-1]
+        assert rec["log"] == str(p) and len(rec["sha256"]) == 16 and rec["samples"] > 0
+        assert rec["prediction_rms_mm"]["after"] <= rec["prediction_rms_mm"]["before"] + 1e-6
+    from gcode_feedopt.profile.io import save_profile
+
+    back = load_profile(save_profile(prof, tmp_path / "u.yaml"))
+    np.testing.assert_allclose(back.twin.priors["x"].mu, prof.twin.priors["x"].mu, rtol=1e-12)
+    assert back.twin.priors["x"].learned_from[-1]["sha256"] == rec["sha256"]
+
+
+def test_one_bad_log_moves_the_prediction_by_at_most_the_bound(tmp_path):
+    """A log with 0.28 mm RMS of error the twin cannot explain (below the refusal limit) moves
+    the open-loop prediction on that log by ≤ MAX_PRED_CHANGE_MM."""
+    cmd, meas = make_log(tmp_path / "a.csv")
+    meas = meas.copy()
+    meas[:, 0] += 0.4 * np.sign(np.sin(np.arange(len(cmd)) * 0.01))
+    p = tmp_path / "bad.csv"
+    write(p, cmd, meas)
+    log = load_log(p, P)
+    prof, recs = L.learn_logs(P, [log])
+    before, _ = axis_twin(P, "x").run(cmd[:, 0], None, learn=False)
+    after, _ = axis_twin(prof, "x").run(cmd[:, 0], None, learn=False)
+    assert np.sqrt(np.mean((after - before) ** 2)) <= L.MAX_PRED_CHANGE_MM + 1e-9
+
+
+def test_implausible_log_refused(tmp_path):
+    cmd, meas = make_log(tmp_path / "a.csv")
+    meas = meas.copy()
+    meas[:, 0] += 0.8 * np.sin(np.arange(len(cmd)) * 0.05)  # 0.57 mm RMS the twin cannot explain
+    p = tmp_path / "bad.csv"
+    write(p, cmd, meas)
+    with pytest.raises(LogError) as e:
+        L.learn_logs(P, [load_log(p, P)])
+    assert "\n" not in str(e.value) and "not learned" in str(e.value)
+
+
+def test_learn_cli_skips_bad(tmp_path):
+    good, bad = tmp_path / "g.csv", tmp_path / "b.csv"
+    make_log(good, effects=[fx.SensorNoise("x", std_mm=0.001)])
+    cmd = np.full((2000, 3), 50.0)
+    write(bad, cmd, cmd)
+    out = tmp_path / "u.yaml"
+    r = CliRunner().invoke(cli, ["learn", "-m", "ender3pro", str(good), str(bad), "-o", str(out),
+                                 "--skip-bad"])
+    assert r.exit_code == 0, r.output
+    assert "no motion" in r.output
+    assert load_profile(out).twin.priors["x"].learned_from[-1]["log"] == str(good)
+    r = CliRunner().invoke(cli, ["learn", "-m", "ender3pro", str(bad), "-o", str(out)])
+    assert r.exit_code != 0 and "no motion" in r.output
