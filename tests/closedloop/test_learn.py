@@ -35,9 +35,11 @@ def test_learn_records_provenance_and_round_trips(tmp_path):
     assert back.twin.priors["x"].learned_from[-1]["sha256"] == rec["sha256"]
 
 
-def test_one_bad_log_moves_the_prediction_by_at_most_the_bound(tmp_path):
+def test_one_bad_log_moves_the_prediction_by_at_most_the_bound(tmp_path, monkeypatch):
     """A log with 0.28 mm RMS of error the twin cannot explain (below the refusal limit) moves
-    the open-loop prediction on that log by ≤ MAX_PRED_CHANGE_MM."""
+    the open-loop prediction on that log by ≤ MAX_PRED_CHANGE_MM (set to 2 µm here so the
+    bound is active: unbounded, this log moves it by more)."""
+    monkeypatch.setattr(L, "MAX_PRED_CHANGE_MM", 0.002)
     cmd, meas = make_log(tmp_path / "a.csv")
     meas = meas.copy()
     meas[:, 0] += 0.4 * np.sign(np.sin(np.arange(len(cmd)) * 0.01))
@@ -48,6 +50,7 @@ def test_one_bad_log_moves_the_prediction_by_at_most_the_bound(tmp_path):
     before, _ = axis_twin(P, "x").run(cmd[:, 0], None, learn=False)
     after, _ = axis_twin(prof, "x").run(cmd[:, 0], None, learn=False)
     assert np.sqrt(np.mean((after - before) ** 2)) <= L.MAX_PRED_CHANGE_MM + 1e-9
+    assert [r for r in recs if r["axis"] == "x"][0]["step_clipped"]
 
 
 def test_implausible_log_refused(tmp_path):
