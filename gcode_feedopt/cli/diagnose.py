@@ -20,7 +20,9 @@ import click
 @click.option("--output", "-o", "out_profile", type=click.Path(dir_okay=False),
               help="Write the extended profile here (YAML): delay/gain/resonance_shift folded "
                    "into the FRFs, every named effect recorded in provenance.closed_loop.")
-def diagnose(log_path, machine, json_path, plot_path, fit_fraction, out_profile):
+@click.option("--raw-axis", type=click.Choice(["x", "y"]), default="x", show_default=True,
+              help="For a Klipper raw recording: the profile axis it is compared with.")
+def diagnose(log_path, machine, json_path, plot_path, fit_fraction, out_profile, raw_axis):
     """Diagnose LOG (an encoder log from `simulate --log`, or a Klipper raw accelerometer
     recording of a resonance test) against the twin of --machine.
 
@@ -33,7 +35,7 @@ def diagnose(log_path, machine, json_path, plot_path, fit_fraction, out_profile)
     from ..profile import load_profile
 
     profile = load_profile(machine)
-    log = load_log(log_path, profile)
+    log = load_log(log_path, profile, raw_axis=raw_axis)
     d = diagnose_arrays(log.cmd_mm, log.pos_mm, log.ts_s, nominal_impulse(profile),
                         fit_fraction=fit_fraction)
     out = d.to_dict()

@@ -152,12 +152,12 @@ def read_encoder(path) -> MotionLog:
                      source=os.fspath(path), kind="encoder", info={"aligned": "shared clock"})
 
 
-def read_klipper_raw(path, profile, *, n_modes: int = 3) -> MotionLog:
+def read_klipper_raw(path, profile, *, n_modes: int = 3, axis: str = "x") -> MotionLog:
     """A Klipper raw accelerometer recording of a resonance test, with its commanded motion
     (the detected excitation) aligned by cross-correlation and turned into positions.
 
-    The motion is along one direction (``analyse_raw``'s ``direction``); it is logged as axis
-    X (Y at rest). Command position = double integral of the commanded acceleration
+    The motion is along one direction (``analyse_raw``'s ``direction``); it is logged as the
+    profile axis ``axis`` (the other at rest) and compared with that axis's twin. Command position = double integral of the commanded acceleration
     (piecewise constant, so exact), measured position = observer(model, measured accel).
     The model of the observer is the profile's X twin mean."""
     from ..errors import ProfileError
@@ -197,20 +197,23 @@ def read_klipper_raw(path, profile, *, n_modes: int = 3) -> MotionLog:
     v = signal.detrend(v, type="linear") if v.size > 2 else v
     x = np.concatenate(([0.0], np.cumsum(0.5 * (v[1:] + v[:-1]) * ts)))
     x = signal.sosfiltfilt(signal.butter(2, 1.0, btype="highpass", fs=1 / ts, output="sos"), x)
-    h = nominal_impulse(profile)["x"][0]
+    h = nominal_impulse(profile)[axis][0]
     x_model = respond(x, h)
     pos = observer_position(x_model, meas_g, 1.0 / ts)
-    zeros = np.zeros(grid.size)
-    return MotionLog(ts_s=ts, cmd_mm=np.column_stack([x, zeros, zeros]),
-                     pos_mm=np.column_stack([pos, zeros, zeros]), source=name, kind="klipper_raw",
+    cmd_mm = np.zeros((grid.size, 3))
+    pos_mm = np.zeros((grid.size, 3))
+    col = "xy".index(axis)
+    cmd_mm[:, col], pos_mm[:, col] = x, pos
+    return MotionLog(ts_s=ts, cmd_mm=cmd_mm, pos_mm=pos_mm, source=name, kind="klipper_raw",
                      info={"direction": res.direction.tolist(), "generator": res.excitation.generator,
                            "clock_offset_s": float(res.clock.offset_s),
-                           "observer_hz": OBSERVER_HZ, "fs_hz": float(fs),
+                           "observer_hz": OBSERVER_HZ, "fs_hz": float(fs), "axis": axis,
                            "warnings": list(res.warnings)})
 
 
-def load_log(path, profile, *, check: bool = True) -> MotionLog:
-    """Read an encoder log or a Klipper raw recording (by its header) and check it."""
+def load_log(path, profile, *, check: bool = True, raw_axis: str = "x") -> MotionLog:
+    """Read an encoder log or a Klipper raw recording (by its header; ``raw_axis``: the
+    profile axis a raw recording is compared with) and check it."""
     name = os.fspath(path)
     try:
         with open(name, "rb") as f:
@@ -218,7 +221,7 @@ def load_log(path, profile, *, check: bool = True) -> MotionLog:
     except OSError as exc:
         raise LogError(f"{name}: cannot read the log ({exc.strerror})") from None
     if head.startswith("#time"):
-        log = read_klipper_raw(name, profile)
+        log = read_klipper_raw(name, profile, axis=raw_axis)
     else:
         log = read_encoder(name)
     if check:
