@@ -151,3 +151,24 @@ def test_diagnose_cli_refuses_in_one_line(tmp_path):
     write(p, cmd, cmd)
     r = CliRunner().invoke(cli, ["diagnose", "--machine", "ender3pro", str(p)])
     assert r.exit_code != 0 and "no motion" in r.output
+
+
+def test_real_klipper_raw_recording(tmp_path):
+    """Voron 2.4 belt A: excitation detected and aligned, observer positions on the profile's
+    grid; a truncated copy (10 s) is refused in one line."""
+    from ..conftest import MEASURED_DIR
+
+    f = MEASURED_DIR / "voron2.4_klipper-raw-accel_belt-test_20231128_221505_A.csv"
+    if not f.exists():
+        pytest.skip(f"{f} not found")
+    log = load_log(f, PROFILE)
+    assert log.kind == "klipper_raw" and log.info["generator"] == "legacy"
+    assert abs(log.ts_s - PROFILE.ts_s) < 1e-12 and log.cmd_mm.shape[0] > 60_000
+    x = log.pos_mm[:, 0]
+    assert np.all(np.isfinite(x)) and 0.1 < np.ptp(log.cmd_mm[:, 0]) < 20
+    lines = f.read_text().splitlines()
+    cut = tmp_path / "cut.csv"
+    cut.write_text("\n".join(lines[:4000]) + "\n")
+    with pytest.raises(LogError) as e:
+        load_log(cut, PROFILE)
+    assert "\n" not in str(e.value)
