@@ -170,6 +170,13 @@ def read_klipper_raw(path, profile, *, n_modes: int = 3, axis: str = "x") -> Mot
     name = os.fspath(path)
     try:
         t, acc = read_raw(name)
+        from ..identify.excitation import GENERATORS, duration_s
+
+        need = min(duration_s(g) for g in GENERATORS.values())
+        if len(t) < 2 or t[-1] - t[0] < 0.9 * need:
+            span = float(t[-1] - t[0]) if len(t) > 1 else 0.0
+            raise LogError(f"{name}: truncated: the recording spans {span:.1f} s, a Klipper "
+                           f"resonance test lasts {need:.1f} s or more; record the whole test")
         clip = check_clipping(acc)
         if clip:
             raise LogError(f"{name}: {clip[0]}")
