@@ -1,0 +1,118 @@
+"""Whole-pipeline benchmark (issue 9): per-stage wall time and peak memory per case.
+
+Cases: the Cura Benchy (95,520 moves), the Benchy repeated 2x and 4x (whole files
+concatenated: each copy homes and heats again, which the reader accepts), and the butterfly.
+Each case runs `gcode-feedopt` in a fresh process (`--dry-run --report`), so the peak RSS is
+that run's own (resource.getrusage of the child).
+
+    python benchmarks/bench_pipeline.py [--method kinematic] [--cases benchy,benchy2,benchy4,butterfly]
+    python benchmarks/bench_pipeline.py --write   # also write benchmarks/RESULTS.md
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import pathlib
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+
+REPO = pathlib.Path(__file__).resolve().parents[1]
+BENCHY = REPO.parent / "shared" / "data" / "gcode" / "cura-4.11_ender3_3dbenchy.gcode"
+STAGES = ("parse", "path", "plan", "write", "verify", "firmware", "execute")
+
+
+def case_files(tmp: pathlib.Path) -> dict[str, pathlib.Path]:
+    data = BENCHY.read_bytes()
+    out = {"benchy": BENCHY, "butterfly": REPO / "sample_gcode" / "butterfly.gcode"}
+    for k in (2, 4):
+        p = tmp / f"benchy_x{k}.gcode"
+        p.write_bytes(data * k)
+        out[f"benchy{k}"] = p
+    return out
+
+
+#: the child reports its own peak RSS at exit (click ends with sys.exit; atexit still runs)
+CHILD = ("import atexit, resource, runpy, sys\n"
+         "atexit.register(lambda: sys.stderr.write("
+         "'PEAK_KB=%d\\n' % resource.getrusage(resource.RUSAGE_SELF).ru_maxrss))\n"
+         "sys.argv = ['gcode-feedopt'] + sys.argv[1:]\n"
+         "runpy.run_module('gcode_feedopt', run_name='__main__')\n")
+
+
+def run_case(path: pathlib.Path, method: str, machine: str) -> dict:
+    rep = pathlib.Path(tempfile.mkdtemp()) / "r.json"
+    t0 = time.perf_counter()
+    r = subprocess.run([sys.executable, "-c", CHILD, str(path), "--machine", machine,
+                        "--method", method, "--dry-run", "--report", str(rep)],
+                       capture_output=True, text=True)
+    wall = time.perf_counter() - t0
+    if r.returncode != 0:
+        raise SystemExit(f"{path.name}: {r.stderr.strip()}")
+    peak_kb = max((int(x.split("=")[1]) for x in r.stderr.splitlines() if x.startswith("PEAK_KB=")),
+                  default=0)
+    d = json.loads(rep.read_text())
+    return {"moves": d["moves"], "wall_s": wall, "stages": d["stage_wall_s"],
+            "print_s": d["output_time_s"], "peak_mb": peak_kb / 1024.0}
+
+
+def machine_text() -> str:
+    cpu = "unknown CPU"
+    try:
+        for line in open("/proc/cpuinfo"):
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    mem = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2 ** 30
+    import numpy
+
+    return (f"{cpu}, {os.cpu_count()} cores, {mem:.0f} GiB RAM, Python {platform.python_version()}, "
+            f"numpy {numpy.__version__}, {platform.system()} {platform.release()}")
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--method", default="kinematic")
+    ap.add_argument("--machine", default="ender3pro")
+    ap.add_argument("--cases", default="benchy,benchy2,benchy4,butterfly")
+    ap.add_argument("--write", action="store_true", help="write benchmarks/RESULTS.md")
+    a = ap.parse_args()
+    tmp = pathlib.Path(tempfile.mkdtemp())
+    files = case_files(tmp)
+    rows = {}
+    head = f"{'case':<10} {'moves':>8} {'wall s':>7} " + " ".join(f"{s:>8}" for s in STAGES) + \
+        f" {'peak MB':>8} {'x print':>8}"
+    lines = [f"method {a.method}, machine {a.machine}; {machine_text()}", head]
+    print(lines[0])
+    print(head)
+    for name in a.cases.split(","):
+        r = run_case(files[name], a.method, a.machine)
+        rows[name] = r
+        line = (f"{name:<10} {r['moves']:>8} {r['wall_s']:>7.2f} "
+                + " ".join(f"{r['stages'].get(s, 0.0):>8.2f}" for s in STAGES)
+                + f" {r['peak_mb']:>8.0f} {r['print_s'] / r['wall_s']:>7.0f}x")
+        print(line, flush=True)
+        lines.append(line)
+    if "benchy" in rows and "benchy4" in rows:
+        ratio = rows["benchy4"]["wall_s"] / rows["benchy"]["wall_s"]
+        msg = f"scaling: 4x file takes {ratio:.2f}x the time of 1x (target <= 4.5)"
+        print(msg)
+        lines.append(msg)
+    if a.write:
+        out = REPO / "benchmarks" / "RESULTS.md"
+        out.write_text("# Pipeline benchmark results\n\n"
+                       f"`python benchmarks/bench_pipeline.py --method {a.method} --write` "
+                       f"({time.strftime('%Y-%m-%d')}); seconds of wall time per stage, peak RSS "
+                       "of the run's process, and how many times faster than the print the run "
+                       "is.\n\n```\n" + "\n".join(lines) + "\n```\n")
+        print(f"wrote {out}")
+
+
+if __name__ == "__main__":
+    main()
