@@ -67,7 +67,8 @@ def plan(path, profile, opts: Options, fw_limits=None):
     return plan_schedule(opts.method, path, profile,
                          tolerance_mm=opts.tolerance_mm or profile.limits.tolerance_mm,
                          stringency=opts.stringency or profile.limits.stringency,
-                         vmax_mm_s=opts.vmax_mm_s, amax_mm_s2=opts.amax_mm_s2)
+                         vmax_mm_s=opts.vmax_mm_s, amax_mm_s2=opts.amax_mm_s2,
+                         fw_limits=fw_limits)
 
 
 def input_time_s(path, profile, opts: Options, fw_limits=None) -> float:

@@ -29,6 +29,7 @@ from scipy.stats import norm
 from ..errors import FeedOptError
 from ..plan.kinematic import effective_limits, plan_kinematic
 from ..plan.schedule import Schedule
+from .free import FreePlan
 from .mpc import MpcPlanner, MpcSettings
 from .predictors import PlantPredictor, TwinPredictor
 
@@ -160,12 +161,15 @@ def make_twin_predictor(profile, method: str, *, learn: bool):
                          learn=learn and method in ("dd", "pidd"))
 
 
-def _pieces(path):
-    """(s_end, dwell_samples_after, z_move) of the stretches between exact stops; a segment
-    that moves Z is its own stretch (planned as a rest-to-rest trapezoid)."""
+def _pieces(path, z_pieces: bool = True):
+    """(s_end, dwell_samples_after, z_move) of the stretches between exact stops; with
+    ``z_pieces`` a segment that moves Z is its own stretch (planned as a rest-to-rest
+    trapezoid: the per-axis XY rows do not cover Z; the free plan's constraints do)."""
     out = []
     n = path.n_segments
     dz = np.abs(path.end_mm[:, 2] - path.start_mm[:, 2]) > 1e-9
+    if not z_pieces:
+        dz = np.zeros(n, bool)
     for i in range(n):
         boundary = path.stop_after[i] or i == n - 1 or dz[i] or (i + 1 < n and dz[i + 1])
         if boundary:
@@ -194,7 +198,7 @@ def _trapezoid_samples(s_a, s_b, vmax, amax, ts):
 
 def plan_mpc(path, profile, predictor, *, method, tolerance_mm, stringency, vmax_mm_s=None,
              amax_mm_s2=None, settings: MpcSettings | None = None, plant=None,
-             online: bool = False):
+             online: bool = False, fw_limits=None, free: bool = True, screen: bool = True):
     """Receding-window plan of the whole path with ``predictor``; with ``plant`` and
     ``online`` the plant runs each committed window and the predictor observes it."""
     vmax, axis_v, axis_a = effective_limits(profile, vmax_mm_s, amax_mm_s2)
@@ -231,13 +235,18 @@ def plan_mpc(path, profile, predictor, *, method, tolerance_mm, stringency, vmax
         measured.append((k0, meas))
         predictor.observe(k0, meas)
 
+    fp = None
+    if free:
+        fp = FreePlan(path, plan_kinematic(path, profile, vmax_mm_s=vmax_mm_s,
+                                           amax_mm_s2=amax_mm_s2, fw_limits=fw_limits))
     planner = MpcPlanner(path, predictor, ts_s=ts, vmax_mm_s=vmax,
                          amax_mm_s2=np.array([axis_a["x"], axis_a["y"]]), tol_mm=tolerance_mm,
-                         z=z, settings=settings, axis_vmax_mm_s=axis_v, on_commit=on_commit)
+                         z=z, settings=settings, axis_vmax_mm_s=axis_v, on_commit=on_commit,
+                         free=fp, screen=screen)
     t0 = time.perf_counter()
     planner.start(0.0)
     planner.hold(int(round(path.dwell_before_s / ts)))
-    for s_end, dwell_s, z_move in _pieces(path):
+    for s_end, dwell_s, z_move in _pieces(path, z_pieces=fp is None):
         if z_move:
             s_a = planner.s_hist[-1]
             mid = 0.5 * (s_a + s_end)
@@ -260,6 +269,9 @@ def plan_mpc(path, profile, predictor, *, method, tolerance_mm, stringency, vmax
     if "_pred_mean_mm" in info:
         mu = info.pop("_pred_mean_mm")
         sd = info.pop("_pred_std_mm")
+        on = info.pop("_pred_on", None)
+        if on is not None and on.size == mu.size:
+            mu, sd = mu[on], sd[on]
         bnd = np.abs(mu) + z * sd
         info["predicted_max_contour_error_mm"] = float(np.max(bnd)) if bnd.size else 0.0
         info["predicted_p95_contour_error_mm"] = float(np.quantile(np.abs(mu), 0.95)) if mu.size else 0.0
@@ -295,7 +307,7 @@ def plan_schedule(method: str, path, profile, *, tolerance_mm: float, stringency
         raise FeedOptError(f"stringency {stringency} is outside [0.5, 1); pass e.g. 0.95")
     if not tolerance_mm > 0:
         raise FeedOptError(f"tolerance {tolerance_mm} mm must be positive; pass e.g. 0.1")
-    unknown = set(opts) - {"seed"}
+    unknown = set(opts) - {"seed", "free", "screen"}
     if unknown:
         raise FeedOptError(f"unknown option(s) {sorted(unknown)} for plan_schedule")
     if method == "kinematic":
@@ -315,4 +327,5 @@ def plan_schedule(method: str, path, profile, *, tolerance_mm: float, stringency
         predictor = make_twin_predictor(profile, method, learn=online)
     return plan_mpc(path, profile, predictor, method=method, tolerance_mm=tolerance_mm,
                     stringency=stringency, vmax_mm_s=vmax_mm_s, amax_mm_s2=amax_mm_s2,
-                    settings=settings, plant=plant, online=online)
+                    settings=settings, plant=plant, online=online, fw_limits=fw_limits,
+                    **{k: opts[k] for k in ("free", "screen") if k in opts})

@@ -106,8 +106,15 @@ class MpcPlanner:
 
     def __init__(self, geom: Geometry, predictor: Predictor, *, ts_s: float, vmax_mm_s: float,
                  amax_mm_s2, tol_mm: float, z: float, settings: MpcSettings = MpcSettings(),
-                 axis_vmax_mm_s=None, on_commit=None):
+                 axis_vmax_mm_s=None, on_commit=None, free=None, screen: bool = True):
         self.geom = geom
+        #: optimize.free.FreePlan: firmware-consistent constraints (cap along the kinematic
+        #: plan's orbit, tangential acceleration, contour on extruding samples); None keeps
+        #: the paper's per-axis sampled acceleration rows
+        self.free = free
+        #: with ``free``: accept a window's greedy continuation along the free plan without
+        #: an LP when it verifies (it is then the LP's optimum; see free.py)
+        self.screen = bool(screen) and free is not None
         self.pred = predictor
         self.ts = float(ts_s)
         self.vmax = float(vmax_mm_s)
@@ -126,7 +133,7 @@ class MpcPlanner:
         self.osqp = win.OsqpWindowSolver()
         self.stats = {"windows": 0, "iterations": 0, "solver_s": 0.0, "status": {},
                       "fallback_windows": [], "relaxed_windows": [], "unconverged": 0,
-                      "pred_mean_mm": [], "pred_std_mm": [], "pred_xy_mm": [], "solve_times_s": []}
+                      "pred_mean_mm": [], "pred_std_mm": [], "pred_on": [], "pred_xy_mm": [], "solve_times_s": []}
         self._prev: np.ndarray | None = None  # previous accepted horizon s (n,)
 
     # -- helpers -------------------------------------------------------------------------
@@ -163,14 +170,28 @@ class MpcPlanner:
         err_jac = np.eye(n)[None, :, :] - jac
         sig = np.sqrt((normal[:, 0] * std[0]) ** 2 + (normal[:, 1] * std[1]) ** 2)
         ds_max = self._vcap(s_bar) * self.ts
-        ds_max[nw + nb:] = 0.0
         jmax = None if self.st.jmax_mm_s3 is None else np.full(2, self.st.jmax_mm_s3)
+        amax = self.amax * LP_ACC_MARGIN
+        acc_t = rows = None
+        past_ds = 0.0
+        if self.free is not None:
+            ext = np.concatenate([[self._s_before(), s_start], s_bar])
+            ds_max = np.minimum(ds_max, self.free.step_cap(ext[1:-1]))
+            acc_t = self.free.accel(ext[:-2], ext[2:])
+            rows = self.free.constrained(s_bar)
+            past_ds = s_start - ext[0]
+            amax = None
+        ds_max[nw + nb:] = 0.0
         return win.WindowData(
             ts_s=self.ts, s_start_mm=s_start, s_bar_mm=s_bar, pos_bar_mm=pos, tan_bar=tan,
             past_cmd_mm=self._past_cmd(), s_max_mm=s_max, ds_max_mm=ds_max,
-            amax_mm_s2=self.amax * LP_ACC_MARGIN, tol_mm=self.tol, z=self.z, err_bar_mm=err_bar,
+            amax_mm_s2=amax, tol_mm=self.tol, z=self.z, err_bar_mm=err_bar,
             err_jac=err_jac, normal=normal, sigma_mm=sig, jmax_mm_s3=jmax, trust_mm=trust,
-            trust_v_mm_s=trust_v)
+            trust_v_mm_s=trust_v, acc_t_mm_s2=acc_t, past_ds_mm=past_ds, contour_rows=rows)
+
+    def _s_before(self) -> float:
+        """s of the sample before the last committed one (the last one at the start)."""
+        return self.s_hist[-2] if len(self.s_hist) > 1 else self.s_hist[-1]
 
     def _verify(self, s, s_max):
         """Exact-path check of a horizon plan: (ok, worst chance value / tol, worst accel
@@ -180,10 +201,23 @@ class MpcPlanner:
         k0 = len(self.s_hist)
         mean, _, std = self.pred.predict(k0, cmd)
         mu, sig = _contour(_normals(tan), cmd, mean, std)
-        chance = float(np.max(np.abs(mu) + self.z * sig)) / self.tol
-        full = np.vstack([self._past_cmd(), cmd])
-        acc = np.abs(np.diff(full, 2, axis=0)) / self.ts ** 2
-        acc_ratio = float(np.max(acc / self.amax[None, :]))
+        bound = np.abs(mu) + self.z * sig
+        if self.free is not None:
+            f = self.free
+            bound = np.where(f.constrained(s), bound, 0.0)
+            ext = np.concatenate([[self._s_before(), self.s_hist[-1]], s])
+            ds = np.diff(ext)
+            a_t = f.accel(ext[:-2], ext[2:])
+            acc_ratio = float(np.max(np.abs(np.diff(ds)) / (a_t * self.ts ** 2)))
+            cap = f.step_cap(ext[1:-1])
+            over = float(np.max(ds[1:] - cap * (1.0 + VERIFY_ACC_REL) - 1e-9))
+            if over > 0:
+                acc_ratio = max(acc_ratio, 1.0 + VERIFY_ACC_REL + over)
+        else:
+            full = np.vstack([self._past_cmd(), cmd])
+            acc = np.abs(np.diff(full, 2, axis=0)) / self.ts ** 2
+            acc_ratio = float(np.max(acc / self.amax[None, :]))
+        chance = float(np.max(bound)) / self.tol
         ok = (chance <= 1.0 + VERIFY_REL and acc_ratio <= 1.0 + VERIFY_ACC_REL
               and s[-1] <= s_max + 1e-9 and np.all(np.diff(np.concatenate([[self.s_hist[-1]], s])) >= -1e-9))
         self._last_mean = mean
@@ -206,7 +240,7 @@ class MpcPlanner:
     def _objective(self, s):
         return float(np.sum(s))
 
-    def _solve(self, s_start, s_ref, s_max, ref_ok, s_guess):
+    def _solve(self, s_start, s_ref, s_max, ref_ok, s_guess, incumbent=None):
         """Sequential LP with an adaptive trust region. Linearises first about ``s_guess``
         (the previous plan continued at its speed: where the new plan is likely to go), and
         falls back to the verified reference ``s_ref`` (the previous horizon's braking
@@ -214,10 +248,13 @@ class MpcPlanner:
         best *verified* plan found (s_ref when nothing better verifies and ``ref_ok``)."""
         s_best = s_ref if ref_ok else None
         best_obj = self._objective(s_ref) if ref_ok else -np.inf
+        status = "continued"
+        if incumbent is not None and self._objective(incumbent) > best_obj:
+            # a verified plan to beat (the greedy continuation along the free plan)
+            s_best, best_obj, status = incumbent, self._objective(incumbent), "optimal"
         s_lin = s_guess
         delta = self._trust0(s_start)
         delta_cap = self.vmax
-        status = "continued"
         for _ in range(self.st.max_iter):
             w = self._window_data(s_start, s_lin, s_max, trust_v=delta)
             warm = np.diff(np.concatenate([[s_start], s_lin]))
@@ -355,11 +392,25 @@ class MpcPlanner:
             else:
                 s_ref = np.full(n, s_start)
             s_ref = np.minimum(s_ref, s_max)
-            ref_ok = self._verify(s_ref, s_max)[0]
             v_last = self.s_hist[-1] - self.s_hist[-2] if len(self.s_hist) > 1 else 0.0
-            s_guess = np.minimum(s_start + v_last * np.arange(1, n + 1), s_max)
-            s_guess = np.maximum(s_guess, s_ref)
-            status, accepted = self._solve(s_start, s_ref, s_max, ref_ok, s_guess)
+            accepted = verified = None
+            if self.free is not None:
+                cand, rest = self.free.greedy(s_start, v_last, nw, n, s_max)
+                incumbent = None
+                if rest:
+                    vr = self._verify(cand, s_max)
+                    if vr[0] and self.screen:
+                        accepted, status, verified = cand, "free", vr
+                    elif vr[0]:
+                        incumbent = cand
+                s_guess = np.maximum(cand, s_ref)
+            else:
+                s_guess = np.minimum(s_start + v_last * np.arange(1, n + 1), s_max)
+                s_guess = np.maximum(s_guess, s_ref)
+            if accepted is None:
+                ref_ok = self._verify(s_ref, s_max)[0]
+                status, accepted = self._solve(s_start, s_ref, s_max, ref_ok, s_guess,
+                                               incumbent if self.free is not None else None)
             if accepted is not None and status == "continued":
                 self.stats["fallback_windows"].append(len(self.s_hist))
                 status = "fallback"
@@ -371,8 +422,12 @@ class MpcPlanner:
                     accepted = s_ref  # kinematically valid: a continuation or rest
                     status = "held"
             self._count(status)
-            accepted = np.maximum.accumulate(np.clip(accepted, s_start, s_max))
-            ok, chance, acc_ratio, mu, sig = self._verify(accepted, s_max)
+            if verified is None:
+                accepted = np.maximum.accumulate(np.clip(accepted, s_start, s_max))
+                verified = self._verify(accepted, s_max)
+            ok, chance, acc_ratio, mu, sig = verified
+            if self.free is not None:
+                self.stats["pred_on"].append(self.free.constrained(accepted[:nw]))
             self.stats["pred_mean_mm"].append(mu[:nw])
             self.stats["pred_std_mm"].append(sig[:nw])
             self.stats["pred_xy_mm"].append(self._last_mean[:, :nw].T)
@@ -381,7 +436,11 @@ class MpcPlanner:
             stall = stall + 1 if progress <= 1e-12 else 0
             if stall > 50:
                 raise win_error(len(self.s_hist), s_start)
-            self._commit(accepted[:nw])
+            take = nw
+            done = np.flatnonzero(accepted[:nw] >= s_max - 1e-12)
+            if done.size:
+                take = int(done[0]) + 1  # at rest on the piece end: do not idle there
+            self._commit(accepted[:take])
         return self
 
     def result(self) -> MpcResult:
@@ -402,6 +461,8 @@ class MpcPlanner:
             info["_pred_mean_mm"] = np.concatenate(st["pred_mean_mm"])
             info["_pred_std_mm"] = np.concatenate(st["pred_std_mm"])
             info["_pred_xy_mm"] = np.concatenate(st["pred_xy_mm"])
+            if st["pred_on"]:
+                info["_pred_on"] = np.concatenate(st["pred_on"])
         return MpcResult(np.asarray(self.s_hist, float), info)
 
 

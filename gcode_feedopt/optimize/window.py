@@ -83,6 +83,10 @@ class WindowData:
         trust_v_mm_s: optional speed trust region |Δs_k − Δs̄_k| ≤ trust_v·Ts: the tangent
             linearisation misses κ·(ṡ − ṡ̄)² of acceleration, so bounding the speed change
             bounds the acceleration (and contour) residue; plain variable bounds, no rows.
+        acc_t_mm_s2: optional (n,) tangential acceleration limits |Δs_k − Δs_{k−1}| ≤
+            a_k Ts² (the firmware's per-move acceleration; optimize/free.py). With it,
+            ``amax_mm_s2`` may be None (no per-axis rows: junctions are in ``ds_max_mm``).
+        past_ds_mm: the last committed increment Δs_{−1}, mm (continuity of speed).
     """
 
     ts_s: float
@@ -93,7 +97,7 @@ class WindowData:
     past_cmd_mm: np.ndarray
     s_max_mm: float
     ds_max_mm: np.ndarray
-    amax_mm_s2: np.ndarray
+    amax_mm_s2: np.ndarray | None
     tol_mm: float
     z: float
     err_bar_mm: np.ndarray
@@ -105,6 +109,8 @@ class WindowData:
     contour_rows: np.ndarray | None = None
     trust_mm: float | None = None
     trust_v_mm_s: float | None = None
+    acc_t_mm_s2: np.ndarray | None = None
+    past_ds_mm: float = 0.0
 
     @property
     def n(self) -> int:
@@ -216,6 +222,17 @@ def build_lp(w: WindowData) -> LinearProgram:
             hi.append(bound - const)
             kinds.append(np.full(n, kind))
             samples.append(np.arange(n))
+
+    if w.acc_t_mm_s2 is not None:
+        b = np.asarray(w.acc_t_mm_s2, float) * ts * ts
+        D = (np.eye(n) - np.eye(n, k=-1)) * ds_ref
+        past = np.zeros(n)
+        past[0] = w.past_ds_mm
+        rows.append(D)
+        lo.append(past - b)
+        hi.append(past + b)
+        kinds.append(np.full(n, 1))
+        samples.append(np.arange(n))
 
     if w.trust_mm is not None:
         rows.append(L * ds_ref)

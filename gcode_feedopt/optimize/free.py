@@ -1,0 +1,168 @@
+"""The free plan: what the firmware would do without the tolerance, as the optimizer's cap.
+
+The kinematic plan F (plan.kinematic: feed cap, per-move acceleration that keeps every axis
+within its limit, the firmware's junction speeds, exact stops) is the fastest motion the
+firmware will execute at all: a written F above it is clipped by the firmware's own planner.
+The receding-window optimizer therefore works *below* F (firmware-consistent constraints):
+
+- speed cap along F's orbit: s_k ≤ Φ(s_{k−1}) with Φ(s) = S_F(T_F(s) + Ts), where S_F(t) is
+  F's path position at time t and T_F(s) the time F leaves s. Φ is monotone, so every plan
+  with this cap stays behind F (s_k ≤ F_k by induction) and F itself meets it with equality;
+  the junction speeds and the feed caps of the firmware are in it;
+- tangential acceleration |Δ²s_k| ≤ a_t Ts², a_t the per-move acceleration of the segments the
+  sample touches (the firmware's trapezoid acceleration, per-axis limits included);
+- the chance constraint on the contour error of extruding samples (travel moves deposit
+  nothing; a file that never extrudes, e.g. a CNC job, constrains every sample).
+
+Consequence (tested): where the chance constraint is slack, the optimizer's plan *is* F, so
+a window whose greedy continuation along F is predicted within tolerance needs no LP solve —
+the screening shortcut of issue 9 gives the same schedule as solving every window.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..plan.trapezoid import Trapezoids
+
+
+def evaluate(tr: Trapezoids, s0_mm: np.ndarray, t_s: np.ndarray) -> np.ndarray:
+    """F's path position at arbitrary times t (s), exact on the trapezoid phases."""
+    t = np.asarray(t_s, float)
+    n = s0_mm.size - 1
+    if n == 0:
+        return np.zeros_like(t)
+    i = np.clip(np.searchsorted(tr.t0_s, t, side="right") - 1, 0, n - 1)
+    tau = t - tr.t0_s[i]
+    v0 = tr.v0_mm_s[i]
+    a = tr.accel_mm_s2[i]
+    ta = tr.t_acc_s[i]
+    tc = tr.t_cru_s[i]
+    td = tr.t_dec_s[i]
+    vc = tr.vc_mm_s[i]
+    L = s0_mm[i + 1] - s0_mm[i]
+    s_acc = v0 * tau + 0.5 * a * tau * tau
+    s_cru = tr.d_acc_mm[i] + vc * (tau - ta)
+    t3 = tau - ta - tc
+    s_dec = tr.d_acc_mm[i] + tr.d_cru_mm[i] + vc * t3 - 0.5 * a * t3 * t3
+    s = np.where(tau < ta, s_acc, np.where(tau < ta + tc, s_cru,
+                                           np.where(tau < ta + tc + td, s_dec, L)))
+    s = np.where(tau < 0, 0.0, s)
+    s = s0_mm[i] + np.clip(s, 0.0, L)
+    return np.where(t >= tr.t0_s[-1], s0_mm[-1], s)
+
+
+class FreePlan:
+    """F of a path (a kinematic Schedule with its trapezoids) and the constraints it defines.
+
+    Attributes:
+        s_mm: (K,) F sampled at Ts. ts: Ts.
+        seg_accel: (N,) per-segment tangential acceleration, mm/s².
+        extruding: (N,) bool, segments whose contour error is constrained.
+    """
+
+    def __init__(self, path, schedule):
+        self.path = path
+        self.tr: Trapezoids = schedule.info["trapezoids"]
+        self.s_mm = np.asarray(schedule.s_mm, float)
+        self.ts = float(schedule.ts_s)
+        self.s0 = np.asarray(path.s0_mm, float)
+        self.seg_accel = np.asarray(self.tr.accel_mm_s2, float)
+        ext = np.asarray(path.de_mm, float) > 1e-9
+        self.extruding = ext if ext.any() else np.ones_like(ext)
+
+    # -- the orbit cap -------------------------------------------------------------------
+    def depart_time(self, s) -> np.ndarray:
+        """T_F(s): the time F leaves path position s (linear between samples), s."""
+        s = np.asarray(s, float)
+        sf = self.s_mm
+        i = np.clip(np.searchsorted(sf, s, side="right") - 1, 0, sf.size - 2)
+        lo, hi = sf[i], sf[i + 1]
+        span = hi - lo
+        frac = np.where(span > 0, (s - lo) / np.where(span > 0, span, 1.0), 0.0)
+        return (i + np.clip(frac, 0.0, 1.0)) * self.ts
+
+    def step_cap(self, s) -> np.ndarray:
+        """Φ(s) − s: the largest increment of the next sample from s, mm (≥ 0)."""
+        s = np.asarray(s, float)
+        nxt = evaluate(self.tr, self.s0, self.depart_time(s) + self.ts)
+        return np.maximum(nxt - s, 0.0)
+
+    def accel(self, s_lo, s_hi) -> np.ndarray:
+        """Tangential acceleration limit of samples spanning [s_lo, s_hi]: the largest of the
+        segments touched (F's own second difference across a junction uses both), mm/s²."""
+        n = self.seg_accel.size
+        a = np.clip(self.path.segment_at(np.asarray(s_lo, float)), 0, n - 1)
+        b = np.clip(self.path.segment_at(np.asarray(s_hi, float)), 0, n - 1)
+        out = np.maximum(self.seg_accel[a], self.seg_accel[b])
+        wide = b > a + 1
+        if np.any(wide):
+            for j in np.flatnonzero(wide):
+                out[j] = float(np.max(self.seg_accel[a[j]:b[j] + 1]))
+        return out
+
+    def accel_min(self, s_lo: float, s_hi: float) -> float:
+        """The smallest per-move acceleration on [s_lo, s_hi] (safe braking), mm/s²."""
+        n = self.seg_accel.size
+        a, b = np.clip(self.path.segment_at(np.array([s_lo, s_hi], float)), 0, n - 1)
+        return float(np.min(self.seg_accel[a:b + 1]))
+
+    def constrained(self, s) -> np.ndarray:
+        """bool: the contour error at path position s is constrained (extruding)."""
+        n = self.extruding.size
+        return self.extruding[np.clip(self.path.segment_at(np.asarray(s, float)), 0, n - 1)]
+
+    # -- greedy continuation -----------------------------------------------------------------
+    def greedy(self, s_prev: float, ds_prev: float, n_go: int, n_total: int, s_max: float):
+        """The fastest continuation from (s_prev, last increment ds_prev): n_go samples as
+        fast as the cap and the acceleration allow, then the hardest braking to rest, then
+        held, n_total samples in all. Returns (s (n_total,), reached_rest).
+
+        On F's orbit (the previous sample was on it too) the go part is F itself, shifted
+        in time (one vectorized evaluation); below it, a sample-by-sample loop."""
+        ts = self.ts
+        ts2 = ts * ts
+        T0 = float(self.depart_time(np.array([s_prev]))[0])
+        back = float(evaluate(self.tr, self.s0, np.array([T0 - ts]))[0]) if ds_prev > 0 else s_prev
+        go = None
+        if abs(back - (s_prev - ds_prev)) <= 1e-9 * max(1.0, abs(s_prev)):
+            go = evaluate(self.tr, self.s0, T0 + ts * np.arange(1, n_go + 1))
+            go = np.maximum.accumulate(np.minimum(go, s_max))
+            if go[-1] >= s_max - 1e-12 and n_go > 1:
+                go = None  # the piece ends inside: let the loop brake for s_max
+        if go is None:
+            go = np.empty(n_go)
+            s, ds = float(s_prev), float(ds_prev)
+            for k in range(n_go):
+                cap = float(self.step_cap(np.array([s]))[0])
+                a = float(self.accel(np.array([s - ds]), np.array([s + cap]))[0])
+                new = max(min(cap, ds + a * ts2, s_max - s), 0.0)
+                s, ds = s + new, new
+                go[k] = s
+        out = np.empty(n_total)
+        out[:n_go] = go
+        s = float(go[-1]) if n_go else float(s_prev)
+        ds = float(go[-1] - (go[-2] if n_go > 1 else s_prev)) if n_go else float(ds_prev)
+        n_b = n_total - n_go
+        if n_b <= 0:
+            return out, ds <= 0.0
+        if ds <= 0.0:
+            out[n_go:] = s
+            return out, True
+        # brake at the smallest per-move acceleration over the stopping distance
+        a = self.accel_min(s - ds, min(s + ds * ds / (2 * self.seg_accel.min() * ts2) + 2 * ds, s_max))
+        steps = ds - a * ts2 * np.arange(1, n_b + 1)
+        steps = np.maximum(steps, 0.0)
+        tail = s + np.cumsum(steps)
+        prev = np.concatenate([[s], tail[:-1]])
+        ok = np.all(steps <= self.step_cap(prev) + 1e-12) and tail[-1] <= s_max + 1e-12
+        if not ok:
+            tail = np.empty(n_b)
+            for k in range(n_b):
+                if ds > 0.0:
+                    cap = float(self.step_cap(np.array([s]))[0])
+                    new = max(0.0, min(ds - a * ts2, cap, s_max - s))
+                    s, ds = s + new, new
+                tail[k] = s
+        out[n_go:] = tail
+        return out, bool(out[-1] - out[-2] <= 0.0) if n_total > 1 else True
