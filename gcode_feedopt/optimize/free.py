@@ -127,9 +127,8 @@ class FreePlan:
         go = None
         if abs(back - (s_prev - ds_prev)) <= 1e-9 * max(1.0, abs(s_prev)):
             go = evaluate(self.tr, self.s0, T0 + ts * np.arange(1, n_go + 1))
+            # F is at rest on every exact stop, so a piece end inside is reached at rest
             go = np.maximum.accumulate(np.minimum(go, s_max))
-            if go[-1] >= s_max - 1e-12 and n_go > 1:
-                go = None  # the piece ends inside: let the loop brake for s_max
         if go is None:
             go = np.empty(n_go)
             s, ds = float(s_prev), float(ds_prev)

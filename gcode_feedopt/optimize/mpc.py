@@ -46,6 +46,8 @@ LP_ACC_MARGIN = 0.995
 #: residue κ(ṡ − ṡ̄)² is this fraction of A_max; lower bound, mm/s.
 TRUST_ACC_FRAC = 0.01
 TRUST_MIN_MM_S = 1.0
+#: With the free plan's constraints: initial speed trust radius as a fraction of V_max.
+TRUST_FREE_FRAC = 0.25
 #: Step fractions tried back towards the verified plan when a linearised step fails
 #: verification.
 LINE_SEARCH = (0.5, 0.25)
@@ -199,7 +201,7 @@ class MpcPlanner:
         cmd = self.geom.position(s)[:, :2]
         tan = self.geom.tangent(s)[:, :2]
         k0 = len(self.s_hist)
-        mean, _, std = self.pred.predict(k0, cmd)
+        mean, _, std = self.pred.predict(k0, cmd, jac=False)
         mu, sig = _contour(_normals(tan), cmd, mean, std)
         bound = np.abs(mu) + self.z * sig
         if self.free is not None:
@@ -254,6 +256,10 @@ class MpcPlanner:
             s_best, best_obj, status = incumbent, self._objective(incumbent), "optimal"
         s_lin = s_guess
         delta = self._trust0(s_start)
+        if self.free is not None:
+            # no per-axis rows to protect: the trust region only guards the chance
+            # constraint's path linearisation (the line search halves it when needed)
+            delta = max(delta, TRUST_FREE_FRAC * self.vmax)
         delta_cap = self.vmax
         for _ in range(self.st.max_iter):
             w = self._window_data(s_start, s_lin, s_max, trust_v=delta)
@@ -387,7 +393,7 @@ class MpcPlanner:
             # reference plan: the previous horizon's continuation (it brakes to rest and was
             # verified), or rest at the start of a piece
             if self._prev is not None:
-                tail = self._prev[nw:]
+                tail = self._prev[nw:nw + n]
                 s_ref = np.concatenate([tail, np.full(n - tail.size, tail[-1])])
             else:
                 s_ref = np.full(n, s_start)
@@ -395,8 +401,8 @@ class MpcPlanner:
             v_last = self.s_hist[-1] - self.s_hist[-2] if len(self.s_hist) > 1 else 0.0
             accepted = verified = None
             if self.free is not None:
-                cand, rest = self.free.greedy(s_start, v_last, nw, n, s_max)
                 incumbent = None
+                cand, rest = self.free.greedy(s_start, v_last, nw, n, s_max)
                 if rest:
                     vr = self._verify(cand, s_max)
                     if vr[0] and self.screen:
@@ -426,20 +432,21 @@ class MpcPlanner:
                 accepted = np.maximum.accumulate(np.clip(accepted, s_start, s_max))
                 verified = self._verify(accepted, s_max)
             ok, chance, acc_ratio, mu, sig = verified
+            take = nw
+            done = np.flatnonzero(accepted[:take] >= s_max - 1e-12)
+            if done.size:
+                take = int(done[0]) + 1  # at rest on the piece end: do not idle there
             if self.free is not None:
-                self.stats["pred_on"].append(self.free.constrained(accepted[:nw]))
-            self.stats["pred_mean_mm"].append(mu[:nw])
-            self.stats["pred_std_mm"].append(sig[:nw])
-            self.stats["pred_xy_mm"].append(self._last_mean[:, :nw].T)
-            self._prev = accepted
-            progress = accepted[nw - 1] - s_start
+                self.stats["pred_on"].append(self.free.constrained(accepted[:take]))
+            self.stats["pred_mean_mm"].append(mu[:take])
+            self.stats["pred_std_mm"].append(sig[:take])
+            self.stats["pred_xy_mm"].append(self._last_mean[:, :take].T)
+            # the reference of the next window continues this plan from the committed end
+            self._prev = accepted[take - nw:] if take > nw else accepted
+            progress = accepted[take - 1] - s_start
             stall = stall + 1 if progress <= 1e-12 else 0
             if stall > 50:
                 raise win_error(len(self.s_hist), s_start)
-            take = nw
-            done = np.flatnonzero(accepted[:nw] >= s_max - 1e-12)
-            if done.size:
-                take = int(done[0]) + 1  # at rest on the piece end: do not idle there
             self._commit(accepted[:take])
         return self
 

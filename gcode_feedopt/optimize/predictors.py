@@ -51,7 +51,7 @@ class FirPredictor:
     def commit(self, k0: int, cmd: np.ndarray) -> None:
         self.cmd.extend(np.asarray(cmd, float))
 
-    def predict(self, k0: int, cmd_h: np.ndarray):
+    def predict(self, k0: int, cmd_h: np.ndarray, jac: bool = True):
         hist = np.asarray(self.cmd, float)
         ref = hist[0] if hist.size else cmd_h[0]
         n = cmd_h.shape[0]
@@ -136,6 +136,7 @@ class TwinPredictor:
         self.pred_mean = [[], []]  # the twin's prediction of each committed sample (absolute)
         self.pred_std = [[], []]
         self._free: dict = {}
+        self._last = None
         self._toep: dict = {}
         self._rec: dict = {}
         self.maxlag = max(self.n2, self.n3)
@@ -223,7 +224,7 @@ class TwinPredictor:
             self._rec[key] = got
         return got
 
-    def _axis(self, a: int, k0: int, dev_h: np.ndarray):
+    def _axis(self, a: int, k0: int, dev_h: np.ndarray, jac: bool = True):
         n = dev_h.size
         n2, n3 = self.n2, self.n3
         mu, cov = self.mu[a], self.cov[a]
@@ -242,37 +243,58 @@ class TwinPredictor:
             if n3 else np.zeros(n)
         rhs = mu[0] + cx_hist + ce_hist + Sx @ xm - Ae @ xm
         m = inv @ rhs
-        Jm = inv @ ((Sx - Ae) @ Jx)
+        Jm = inv @ ((Sx - Ae) @ Jx) if jac else None
         e_h = m - xm
-        # feature means and variances, vectorized over the horizon
+        # feature means and variances over the horizon (cached lag index arrays)
+        ix, ie = self._lag_index(n)
         allx = np.concatenate([px, xm])
         alle = np.concatenate([pe, e_h])
         P = np.empty((n, self.d))
         P[:, 0] = 1.0
-        P[:, 1:2 + n2] = np.lib.stride_tricks.sliding_window_view(allx, n2 + 1)[:n]
+        P[:, 1:2 + n2] = allx[ix]
         if n3:
-            P[:, 2 + n2:] = np.lib.stride_tricks.sliding_window_view(alle, n3)[:n]
-        var = self.s2 + np.einsum("td,de,te->t", P, cov, P, optimize=True)
+            P[:, 2 + n2:] = alle[ie]
+        var = self.s2 + np.einsum("ij,ij->i", P @ cov, P)
         if self.use_var and Y.shape[1]:
             # β̄ᵀΣ_ψβ̄ with the full feature covariance (as twin.model.AxisTwin.run): the
             # random part of Σ_lag c_lag x̂(t − lag), c = +β_x on x̂ lags, −β_e on e lags
             # (e = x − x̂ inherits x̂'s uncertainty with the opposite sign)
-            ml = self.maxlag
             Yall = np.vstack([self._ytail(a, k0), Y])
-            c = np.zeros(ml + 1)
-            np.add.at(c, np.arange(n2, -1, -1), wx)
-            np.add.at(c, np.arange(n3, 0, -1), -we)
-            win = np.lib.stride_tricks.sliding_window_view(Yall, ml + 1, axis=0)[:n]
-            q = win @ c[::-1]
+            q = self._lag_matrix(a, n) @ Yall
             quad = np.einsum("ij,ij->i", q, q)
-            V = np.zeros((n, self.d))
-            V[:, 1:2 + n2] = np.lib.stride_tricks.sliding_window_view(
-                np.concatenate([pv, xv]), n2 + 1)[:n]
-            if n3:
-                V[:, 2 + n2:] = np.lib.stride_tricks.sliding_window_view(
-                    np.concatenate([pev, xv]), n3)[:n]
-            var = var + quad + V @ np.diag(cov)
+            dg = np.diag(cov)
+            vx = np.concatenate([pv, xv])[ix] @ dg[1:2 + n2]
+            ve = np.concatenate([pev, xv])[ie] @ dg[2 + n2:] if n3 else 0.0
+            var = var + quad + vx + ve
         return m, Jm, np.sqrt(np.maximum(var, 0.0)), xm, xv, Y
+
+    def _lag_index(self, n: int):
+        """Index arrays (n, n2+1) and (n, n3) into [history, horizon] of the x̂ and e lags."""
+        key = ("idx", n)
+        got = self._rec.get(key)
+        if got is None:
+            t = np.arange(n)[:, None]
+            got = (t + np.arange(self.n2 + 1)[None, :], t + np.arange(self.n3)[None, :])
+            self._rec[key] = got
+        return got
+
+    def _lag_matrix(self, a: int, n: int) -> np.ndarray:
+        """(n, maxlag + n) C with (C @ Yall)_t = Σ_lag c_lag Y_{t−lag} for the signed lag
+        weights c of the current weights (rebuilt when the weights learn)."""
+        key = ("lag", a, n)
+        got = self._rec.get(key)
+        if got is None:
+            mu = self.mu[a]
+            n2, n3, ml = self.n2, self.n3, self.maxlag
+            c = np.zeros(ml + 1)
+            np.add.at(c, np.arange(n2, -1, -1), mu[1:2 + n2])
+            np.add.at(c, np.arange(n3, 0, -1), -mu[2 + n2:])
+            got = np.zeros((n, ml + n))
+            for lag in range(ml + 1):
+                idx = np.arange(n)
+                got[idx, idx + ml - lag] = c[lag]
+            self._rec[key] = got
+        return got
 
     def _ytail(self, a: int, k0: int) -> np.ndarray:
         """(maxlag, r) factor series of the samples k0−maxlag … k0−1 (zeros before start)."""
@@ -284,20 +306,27 @@ class TwinPredictor:
             out[ml - take.shape[0]:] = take
         return out
 
-    def predict(self, k0: int, cmd_h: np.ndarray):
+    def predict(self, k0: int, cmd_h: np.ndarray, jac: bool = True):
+        """Mean (2, n), Jacobian (2, n, n) (None with ``jac=False``) and std (2, n) of the
+        predicted actual XY for horizon commands cmd_h after the committed history."""
         cmd_h = np.asarray(cmd_h, float)
         n = cmd_h.shape[0]
         if self.ref is None:
             self.ref = cmd_h[0].copy()
         mean = np.empty((2, n))
         std = np.empty((2, n))
-        jac = np.empty((2, n, n))
+        J = np.empty((2, n, n)) if jac else None
+        parts = []
         for a in range(2):
-            m, Jm, sd, _, _, _ = self._axis(a, k0, cmd_h[:, a] - self.ref[a])
+            m, Jm, sd, xm, xv, Y = self._axis(a, k0, cmd_h[:, a] - self.ref[a], jac=jac)
             mean[a] = m + self.ref[a]
             std[a] = sd
-            jac[a] = Jm
-        return mean, jac, std
+            if jac:
+                J[a] = Jm
+            parts.append((m, sd, xm, xv, Y))
+        # causal: a later commit of a prefix of cmd_h at k0 reuses these (commit below)
+        self._last = (k0, cmd_h.copy(), parts)
+        return mean, J, std
 
     #: commits longer than this are taken in chunks (the horizon Toeplitz stacks are
     #: (r, n, n); a long rest-to-rest move would otherwise build a huge one)
@@ -305,15 +334,22 @@ class TwinPredictor:
 
     def commit(self, k0: int, cmd: np.ndarray) -> None:
         cmd = np.asarray(cmd, float)
-        if cmd.shape[0] > self.COMMIT_CHUNK:
-            for j in range(0, cmd.shape[0], self.COMMIT_CHUNK):
-                self.commit(k0 + j, cmd[j:j + self.COMMIT_CHUNK])
-            return
         if self.ref is None:
             self.ref = cmd[0].copy()
+        last, self._last = self._last, None
+        m_len = cmd.shape[0]
+        reuse = (last is not None and last[0] == k0 and last[1].shape[0] >= m_len
+                 and np.array_equal(last[1][:m_len], cmd))
+        if not reuse and m_len > self.COMMIT_CHUNK:
+            for j in range(0, m_len, self.COMMIT_CHUNK):
+                self.commit(k0 + j, cmd[j:j + self.COMMIT_CHUNK])
+            return
         for a in range(2):
             dev = cmd[:, a] - self.ref[a]
-            m, _, sd, xm, xv, Y = self._axis(a, k0, dev)
+            if reuse:
+                m, sd, xm, xv, Y = (v[:m_len] for v in last[2][a])
+            else:
+                m, _, sd, xm, xv, Y = self._axis(a, k0, dev, jac=False)
             prev = self.yhist[a]
             Y = Y if prev is None else np.vstack([prev, Y])
             self.yhist[a] = Y[-self.maxlag:]
@@ -330,6 +366,7 @@ class TwinPredictor:
         with ``learn``, the weights learn from each sample (one sample behind, as online)."""
         from ..twin.blr import laplace_update
 
+        self._last = None
         meas = np.asarray(meas, float)
         n2, n3 = self.n2, self.n3
         for a in range(2):
@@ -368,7 +405,7 @@ class PlantPredictor:
     def commit(self, k0: int, cmd: np.ndarray) -> None:
         self.cmd.extend(np.asarray(cmd, float))
 
-    def predict(self, k0: int, cmd_h: np.ndarray):
+    def predict(self, k0: int, cmd_h: np.ndarray, jac: bool = True):
         from ..vm.plant import simulate_axes
 
         cmd_h = np.asarray(cmd_h, float)
