@@ -30,7 +30,8 @@ from ..errors import FeedOptError
 from ..plan.kinematic import effective_limits, plan_kinematic
 from ..plan.schedule import Schedule
 from .free import FreePlan
-from .mpc import MpcPlanner, MpcSettings
+from . import parallel
+from .mpc import MpcPlanner, MpcResult, MpcSettings
 from .predictors import PlantPredictor, TwinPredictor
 
 METHODS = ("kinematic", "conservative", "pb", "dd", "pidd", "oracle")
@@ -198,7 +199,8 @@ def _trapezoid_samples(s_a, s_b, vmax, amax, ts):
 
 def plan_mpc(path, profile, predictor, *, method, tolerance_mm, stringency, vmax_mm_s=None,
              amax_mm_s2=None, settings: MpcSettings | None = None, plant=None,
-             online: bool = False, fw_limits=None, free: bool = True, screen: bool = True):
+             online: bool = False, fw_limits=None, free: bool = True, screen: bool = True,
+             workers: int | None = None):
     """Receding-window plan of the whole path with ``predictor``; with ``plant`` and
     ``online`` the plant runs each committed window and the predictor observes it."""
     vmax, axis_v, axis_a = effective_limits(profile, vmax_mm_s, amax_mm_s2)
@@ -244,9 +246,35 @@ def plan_mpc(path, profile, predictor, *, method, tolerance_mm, stringency, vmax
                          z=z, settings=settings, axis_vmax_mm_s=axis_v, on_commit=on_commit,
                          free=fp, screen=screen)
     t0 = time.perf_counter()
-    planner.start(0.0)
-    planner.hold(int(round(path.dwell_before_s / ts)))
-    for s_end, dwell_s, z_move in _pieces(path, z_pieces=fp is None):
+    pieces = _pieces(path, z_pieces=fp is None)
+    n_workers = parallel.default_workers() if workers is None else int(workers)
+    if (fp is not None and screen and not (online and plant is not None) and n_workers > 1
+            and hasattr(predictor, "load_history") and len(pieces) > 1
+            and fp.s_mm.size >= parallel.MIN_PARALLEL_SAMPLES):
+        import copy
+
+        pristine = copy.deepcopy(predictor)
+
+        def make_planner():
+            pr = copy.deepcopy(pristine)
+            return MpcPlanner(path, pr, ts_s=ts, vmax_mm_s=vmax,
+                              amax_mm_s2=np.array([axis_a["x"], axis_a["y"]]),
+                              tol_mm=tolerance_mm, z=z, settings=settings,
+                              axis_vmax_mm_s=axis_v, free=fp, screen=screen), pr
+
+        nt = max(h.size for h in predictor.h)
+        ctx = {"make_planner": make_planner, "pieces": pieces, "F_s": fp.s_mm, "ts": ts,
+               "path": path, "predictor": pristine, "dwell_before_s": path.dwell_before_s,
+               "history": nt + predictor.maxlag + parallel.HISTORY_PAD}
+        s_par, info_par, xy_par = parallel.run_parallel(ctx, n_workers)
+        res = MpcResult(s_par, info_par)
+        pred_xy_override = xy_par
+    else:
+        res = None
+        pred_xy_override = None
+        planner.start(0.0)
+        planner.hold(int(round(path.dwell_before_s / ts)))
+    for s_end, dwell_s, z_move in (pieces if res is None else ()):
         if z_move:
             s_a = planner.s_hist[-1]
             mid = 0.5 * (s_a + s_end)
@@ -258,7 +286,8 @@ def plan_mpc(path, profile, predictor, *, method, tolerance_mm, stringency, vmax
         else:
             planner.run_piece(s_end)
         planner.hold(int(round(dwell_s / ts)))
-    res = planner.result()
+    if res is None:
+        res = planner.result()
     info = dict(res.info)
     info["compute_s"] = time.perf_counter() - t0
     info["plan_time_s"] = (res.s_mm.size - 1) * ts
@@ -276,7 +305,9 @@ def plan_mpc(path, profile, predictor, *, method, tolerance_mm, stringency, vmax
         info["predicted_max_contour_error_mm"] = float(np.max(bnd)) if bnd.size else 0.0
         info["predicted_p95_contour_error_mm"] = float(np.quantile(np.abs(mu), 0.95)) if mu.size else 0.0
     pred_xy = getattr(predictor, "pred_mean", None)
-    if pred_xy is not None and len(pred_xy[0]) == res.s_mm.size:
+    if pred_xy_override is not None and pred_xy_override.shape[0] == res.s_mm.size:
+        info["_predicted_xy_mm"] = pred_xy_override
+    elif pred_xy is not None and len(pred_xy[0]) == res.s_mm.size:
         info["_predicted_xy_mm"] = np.column_stack([np.asarray(pred_xy[0]), np.asarray(pred_xy[1])])
     info.pop("_pred_xy_mm", None)
     info["vmax_mm_s"] = vmax
@@ -307,7 +338,7 @@ def plan_schedule(method: str, path, profile, *, tolerance_mm: float, stringency
         raise FeedOptError(f"stringency {stringency} is outside [0.5, 1); pass e.g. 0.95")
     if not tolerance_mm > 0:
         raise FeedOptError(f"tolerance {tolerance_mm} mm must be positive; pass e.g. 0.1")
-    unknown = set(opts) - {"seed", "free", "screen"}
+    unknown = set(opts) - {"seed", "free", "screen", "workers"}
     if unknown:
         raise FeedOptError(f"unknown option(s) {sorted(unknown)} for plan_schedule")
     if method == "kinematic":
@@ -328,4 +359,4 @@ def plan_schedule(method: str, path, profile, *, tolerance_mm: float, stringency
     return plan_mpc(path, profile, predictor, method=method, tolerance_mm=tolerance_mm,
                     stringency=stringency, vmax_mm_s=vmax_mm_s, amax_mm_s2=amax_mm_s2,
                     settings=settings, plant=plant, online=online, fw_limits=fw_limits,
-                    **{k: opts[k] for k in ("free", "screen") if k in opts})
+                    **{k: opts[k] for k in ("free", "screen", "workers") if k in opts})

@@ -361,6 +361,23 @@ class TwinPredictor:
             self.pred_std[a].extend(sd)
         self._free.clear()
 
+    def load_history(self, ref, series, mean, std) -> None:
+        """Start from a committed history instead of an empty one: ``series`` per axis
+        (w, x̂, var x̂, e, Y) of H samples from ``predict_trajectory(series=True)`` (only the
+        last n_taps matter: the twin is time-invariant, so a history cut to its memory
+        predicts the same), ``mean``/``std`` (2, H) the predictions of those samples."""
+        self.ref = np.asarray(ref, float).copy()
+        for a in range(2):
+            w, xm, xv, e, Y = series[a]
+            for g, v in ((self.w[a], w), (self.xh[a], xm), (self.xv[a], xv), (self.e[a], e)):
+                g.n = 0
+                g.extend(v)
+            self.yhist[a] = np.asarray(Y, float)[-self.maxlag:]
+            self.pred_mean[a] = list(mean[a])
+            self.pred_std[a] = list(std[a])
+        self._free.clear()
+        self._last = None
+
     def observe(self, k0: int, meas: np.ndarray) -> None:
         """Measured XY (m, 2) of committed samples k0…k0+m−1: errors become measured and,
         with ``learn``, the weights learn from each sample (one sample behind, as online)."""
@@ -437,7 +454,7 @@ def _causal(x: np.ndarray, taps: np.ndarray) -> np.ndarray:
 TRAJ_CHUNK = 1 << 16
 
 
-def predict_trajectory(tp: TwinPredictor, cmd: np.ndarray):
+def predict_trajectory(tp: TwinPredictor, cmd: np.ndarray, series: bool = False):
     """The offline twin over a whole commanded XY trajectory, vectorized.
 
     Equal to committing ``cmd`` to a fresh ``TwinPredictor`` (no measurements, no learning)
@@ -447,7 +464,9 @@ def predict_trajectory(tp: TwinPredictor, cmd: np.ndarray):
     ``lfilter``), and the variance terms are lag convolutions plus ψᵀΣ_βψ in row chunks.
     A whole Benchy (1.2 M samples per axis) takes seconds.
 
-    Returns mean (2, K) absolute mm and std (2, K) mm of the predicted actual position."""
+    Returns mean (2, K) absolute mm and std (2, K) mm of the predicted actual position;
+    with ``series`` also, per axis, the internal series (w, x̂, var x̂, e, Y) that
+    ``TwinPredictor.load_history`` takes."""
     from scipy.signal import lfilter
 
     cmd = np.asarray(cmd, float)
@@ -457,6 +476,7 @@ def predict_trajectory(tp: TwinPredictor, cmd: np.ndarray):
     d = tp.d
     mean = np.empty((2, K))
     std = np.empty((2, K))
+    out = []
     for a in range(2):
         mu, cov = tp.mu[a], tp.cov[a]
         w = cmd[:, a] - ref[a]
@@ -511,4 +531,8 @@ def predict_trajectory(tp: TwinPredictor, cmd: np.ndarray):
                 var += _causal(xv, ve)
         mean[a] = m + ref[a]
         std[a] = np.sqrt(np.maximum(var, 0.0))
+        if series:
+            out.append((w, xm, xv, e, Y))
+    if series:
+        return mean, std, out
     return mean, std

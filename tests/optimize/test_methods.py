@@ -280,3 +280,31 @@ def test_tolerance_below_the_twin_noise_floor_is_refused_with_the_fix(ender, but
     _, path = butterfly_piece
     with pytest.raises(FeedOptError, match="--tolerance above"):
         plan_schedule("pidd", path, ender, tolerance_mm=0.01, stringency=0.95)
+
+
+def test_parallel_chunks_give_the_sequential_plan(ender, monkeypatch):
+    """Pieces between exact stops planned in worker processes from F's recent history (the
+    twin's memory) give the plan of one sequential pass."""
+    from gcode_feedopt import pipeline
+    from gcode_feedopt.optimize import parallel
+    from gcode_feedopt.vm import firmware
+
+    monkeypatch.setattr(parallel, "MIN_PARALLEL_SAMPLES", 0)
+    src = REPO.parent / "shared" / "data" / "gcode" / "cura-4.11_ender3_3dbenchy.gcode"
+    lines = src.read_bytes().splitlines(keepends=True)[:900]
+    import tempfile
+    with tempfile.TemporaryDirectory() as d:
+        f = pathlib.Path(d) / "b.gcode"
+        f.write_bytes(b"".join(lines))
+        prog = pipeline.read_for(f, ender)
+    path = pipeline.path_for(prog, ender)
+    fw = firmware.move_limits(prog, ender)
+    kw = dict(tolerance_mm=0.1, stringency=0.95, fw_limits=fw)
+    seq = plan_schedule("pidd", path, ender, workers=1, **kw)
+    par = plan_schedule("pidd", path, ender, workers=2, **kw)
+    assert par.info["parallel_chunks"] >= 2
+    assert par.s_mm.size == seq.s_mm.size
+    np.testing.assert_allclose(par.s_mm, seq.s_mm, atol=1e-6)
+    assert par.info["window_status"] == seq.info["window_status"]
+    assert abs(par.info["predicted_max_contour_error_mm"]
+               - seq.info["predicted_max_contour_error_mm"]) < 1e-6
