@@ -88,17 +88,20 @@ class FreePlan:
         nxt = evaluate(self.tr, self.s0, self.depart_time(s) + self.ts)
         return np.maximum(nxt - s, 0.0)
 
-    def accel(self, s_lo, s_hi) -> np.ndarray:
+    def accel(self, s_lo, s_hi, smallest: bool = False) -> np.ndarray:
         """Tangential acceleration limit of samples spanning [s_lo, s_hi]: the largest of the
-        segments touched (F's own second difference across a junction uses both), mm/s²."""
+        segments touched (F's own second difference across a junction uses both), or with
+        ``smallest`` the smallest (safe whichever of them the sample ends up in), mm/s²."""
         n = self.seg_accel.size
         a = np.clip(self.path.segment_at(np.asarray(s_lo, float)), 0, n - 1)
         b = np.clip(self.path.segment_at(np.asarray(s_hi, float)), 0, n - 1)
-        out = np.maximum(self.seg_accel[a], self.seg_accel[b])
+        pick = np.minimum if smallest else np.maximum
+        red = np.min if smallest else np.max
+        out = pick(self.seg_accel[a], self.seg_accel[b])
         wide = b > a + 1
         if np.any(wide):
             for j in np.flatnonzero(wide):
-                out[j] = float(np.max(self.seg_accel[a[j]:b[j] + 1]))
+                out[j] = float(red(self.seg_accel[a[j]:b[j] + 1]))
         return out
 
     def accel_min(self, s_lo: float, s_hi: float) -> float:

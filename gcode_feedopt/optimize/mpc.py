@@ -46,6 +46,10 @@ LP_ACC_MARGIN = 0.995
 #: residue κ(ṡ − ṡ̄)² is this fraction of A_max; lower bound, mm/s.
 TRUST_ACC_FRAC = 0.01
 TRUST_MIN_MM_S = 1.0
+#: Secant of the orbit cap's slope Φ' behind s̄ (mm), and its clip (Φ' = ratio of F's
+#: speeds one sample apart; large only leaving a standstill).
+CAP_SLOPE_H_MM = 0.05
+CAP_SLOPE_MAX = 4.0
 #: With the free plan's constraints: initial speed trust radius as a fraction of V_max.
 TRUST_FREE_FRAC = 0.25
 #: Step fractions tried back towards the verified plan when a linearised step fails
@@ -174,13 +178,24 @@ class MpcPlanner:
         ds_max = self._vcap(s_bar) * self.ts
         jmax = None if self.st.jmax_mm_s3 is None else np.full(2, self.st.jmax_mm_s3)
         amax = self.amax * LP_ACC_MARGIN
-        acc_t = rows = None
+        acc_t = rows = cap_next = cap_slope = None
         past_ds = 0.0
         if self.free is not None:
+            f = self.free
             ext = np.concatenate([[self._s_before(), s_start], s_bar])
-            ds_max = np.minimum(ds_max, self.free.step_cap(ext[1:-1]))
-            acc_t = self.free.accel(ext[:-2], ext[2:])
-            rows = self.free.constrained(s_bar)
+            s_prev = ext[1:-1]
+            cap_next = s_prev + f.step_cap(s_prev)
+            # secant slope of Φ just behind s̄ (a slower plan sits behind it)
+            back = np.maximum(s_prev - CAP_SLOPE_H_MM, 0.0)
+            span = s_prev - back
+            cap_slope = np.where(span > 0, (cap_next - back - f.step_cap(back))
+                                 / np.where(span > 0, span, 1.0), 1.0)
+            cap_slope = np.clip(cap_slope, 0.0, CAP_SLOPE_MAX)
+            ds_max[0] = min(ds_max[0], cap_next[0] - s_start)
+            # the LP takes the smaller per-move acceleration where a span touches two
+            # segments (verification allows the larger, which F itself may use)
+            acc_t = f.accel(ext[:-2], ext[2:], smallest=True)
+            rows = f.constrained(s_bar)
             past_ds = s_start - ext[0]
             amax = None
         ds_max[nw + nb:] = 0.0
@@ -189,7 +204,8 @@ class MpcPlanner:
             past_cmd_mm=self._past_cmd(), s_max_mm=s_max, ds_max_mm=ds_max,
             amax_mm_s2=amax, tol_mm=self.tol, z=self.z, err_bar_mm=err_bar,
             err_jac=err_jac, normal=normal, sigma_mm=sig, jmax_mm_s3=jmax, trust_mm=trust,
-            trust_v_mm_s=trust_v, acc_t_mm_s2=acc_t, past_ds_mm=past_ds, contour_rows=rows)
+            trust_v_mm_s=trust_v, acc_t_mm_s2=acc_t, past_ds_mm=past_ds, contour_rows=rows,
+            cap_next_mm=cap_next, cap_slope=cap_slope)
 
     def _s_before(self) -> float:
         """s of the sample before the last committed one (the last one at the start)."""

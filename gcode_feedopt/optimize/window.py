@@ -87,6 +87,9 @@ class WindowData:
             a_k Ts² (the firmware's per-move acceleration; optimize/free.py). With it,
             ``amax_mm_s2`` may be None (no per-axis rows: junctions are in ``ds_max_mm``).
         past_ds_mm: the last committed increment Δs_{−1}, mm (continuity of speed).
+        cap_next_mm, cap_slope: optional (n,) orbit cap s_k ≤ Φ(s_{k−1}) linearised at
+            s̄_{k−1}: Φ̄_k = Φ(s̄_{k−1}) and φ_k = Φ'(s̄_{k−1}) (optimize/free.py); rows
+            s_k − φ_k s_{k−1} ≤ Φ̄_k − φ_k s̄_{k−1} (the first one, s_{−1} = s_start, exact).
     """
 
     ts_s: float
@@ -111,6 +114,8 @@ class WindowData:
     trust_v_mm_s: float | None = None
     acc_t_mm_s2: np.ndarray | None = None
     past_ds_mm: float = 0.0
+    cap_next_mm: np.ndarray | None = None
+    cap_slope: np.ndarray | None = None
 
     @property
     def n(self) -> int:
@@ -156,7 +161,7 @@ class LinearProgram:
     lb: np.ndarray
     ub: np.ndarray
     ds_ref_mm: float
-    row_kind: np.ndarray  # (m,) int: 0 path end, 1 accel, 2 jerk, 3 contour, 4 trust
+    row_kind: np.ndarray  # (m,) int: 0 path end, 1 accel, 2 jerk, 3 contour, 4 trust, 5 cap
     row_sample: np.ndarray  # (m,) int: horizon sample of the row (its last nonzero column)
 
     def pattern(self) -> np.ndarray:
@@ -232,6 +237,20 @@ def build_lp(w: WindowData) -> LinearProgram:
         lo.append(past - b)
         hi.append(past + b)
         kinds.append(np.full(n, 1))
+        samples.append(np.arange(n))
+
+    if w.cap_next_mm is not None:
+        phi = np.asarray(w.cap_slope, float)
+        s_prev_bar = np.concatenate([[w.s_start_mm], w.s_bar_mm[:-1]])
+        R = L.copy()
+        R[np.tril_indices(n, -1)] = 0.0
+        # Σ_{j<k} (1 − φ_k) Δs_j + Δs_k
+        R += np.tril(np.ones((n, n)), -1) * (1.0 - phi)[:, None]
+        rhs = np.asarray(w.cap_next_mm, float) - w.s_start_mm - phi * (s_prev_bar - w.s_start_mm)
+        rows.append(R * ds_ref)
+        lo.append(np.full(n, -np.inf))
+        hi.append(rhs)
+        kinds.append(np.full(n, 5))
         samples.append(np.arange(n))
 
     if w.trust_mm is not None:
