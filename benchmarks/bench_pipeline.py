@@ -39,7 +39,8 @@ def case_files(tmp: pathlib.Path) -> dict[str, pathlib.Path]:
 #: the child reports its own peak RSS at exit (click ends with sys.exit; atexit still runs)
 CHILD = ("import atexit, resource, runpy, sys\n"
          "atexit.register(lambda: sys.stderr.write("
-         "'PEAK_KB=%d\\n' % resource.getrusage(resource.RUSAGE_SELF).ru_maxrss))\n"
+         "'PEAK_KB=%d\\nPEAK_CHILD_KB=%d\\n' % (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, "
+         "resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss)))\n"
          "sys.argv = ['gcode-feedopt'] + sys.argv[1:]\n"
          "runpy.run_module('gcode_feedopt', run_name='__main__')\n")
 
@@ -53,11 +54,16 @@ def run_case(path: pathlib.Path, method: str, machine: str) -> dict:
     wall = time.perf_counter() - t0
     if r.returncode != 0:
         raise SystemExit(f"{path.name}: {r.stderr.strip()}")
-    peak_kb = max((int(x.split("=")[1]) for x in r.stderr.splitlines() if x.startswith("PEAK_KB=")),
-                  default=0)
+    def peak(tag):
+        return max((int(x.split("=")[1]) for x in r.stderr.splitlines() if x.startswith(tag)),
+                   default=0)
+
+    peak_kb = peak("PEAK_KB=")
+    child_kb = peak("PEAK_CHILD_KB=")
     d = json.loads(rep.read_text())
     return {"moves": d["moves"], "wall_s": wall, "stages": d["stage_wall_s"],
-            "print_s": d["output_time_s"], "peak_mb": peak_kb / 1024.0}
+            "print_s": d["output_time_s"], "peak_mb": peak_kb / 1024.0,
+            "worker_mb": child_kb / 1024.0, "workers": d.get("extra", {}).get("parallel_workers", 0)}
 
 
 def machine_text() -> str:
@@ -87,7 +93,7 @@ def main():
     files = case_files(tmp)
     rows = {}
     head = f"{'case':<10} {'moves':>8} {'wall s':>7} " + " ".join(f"{s:>8}" for s in STAGES) + \
-        f" {'peak MB':>8} {'x print':>8}"
+        f" {'peak MB':>8} {'worker MB':>9} {'x print':>8}"
     lines = [f"method {a.method}, machine {a.machine}; {machine_text()}", head]
     print(lines[0])
     print(head)
@@ -96,7 +102,7 @@ def main():
         rows[name] = r
         line = (f"{name:<10} {r['moves']:>8} {r['wall_s']:>7.2f} "
                 + " ".join(f"{r['stages'].get(s, 0.0):>8.2f}" for s in STAGES)
-                + f" {r['peak_mb']:>8.0f} {r['print_s'] / r['wall_s']:>7.0f}x")
+                + f" {r['peak_mb']:>8.0f} {r['worker_mb']:>9.0f} {r['print_s'] / r['wall_s']:>7.0f}x")
         print(line, flush=True)
         lines.append(line)
     if "benchy" in rows and "benchy4" in rows:
@@ -105,13 +111,35 @@ def main():
         print(msg)
         lines.append(msg)
     if a.write:
-        out = REPO / "benchmarks" / "RESULTS.md"
-        out.write_text("# Pipeline benchmark results\n\n"
-                       f"`python benchmarks/bench_pipeline.py --method {a.method} --write` "
-                       f"({time.strftime('%Y-%m-%d')}); seconds of wall time per stage, peak RSS "
-                       "of the run's process, and how many times faster than the print the run "
-                       "is.\n\n```\n" + "\n".join(lines) + "\n```\n")
-        print(f"wrote {out}")
+        write_results(a.method, lines)
+
+
+def write_results(method: str, lines: list[str]) -> None:
+    """Replace (or add) this method's section of benchmarks/RESULTS.md."""
+    out = REPO / "benchmarks" / "RESULTS.md"
+    head = "# Pipeline benchmark results\n\n"
+    text = out.read_text() if out.exists() else head
+    if not text.startswith(head):
+        text = head + text
+    tag = f"## method {method}\n"
+    section = (tag + f"\n`python benchmarks/bench_pipeline.py --method {method} --write` "
+               f"({time.strftime('%Y-%m-%d')}); seconds of wall time per stage, peak RSS of the "
+               "run's process and of its largest worker process (offline twin methods plan "
+               "exact-stop chunks in forked workers; their pages are shared copy-on-write with "
+               "the parent, so parent + workers × worker is an upper bound), and how many times "
+               "faster than the print the run is.\n\n```\n" + "\n".join(lines) + "\n```\n\n")
+    body = text[len(head):]
+    parts = body.split("## method ")
+    kept = [p for p in parts if p.strip() and not p.startswith(f"{method}\n")]
+    # a section written before sections had headers: keep it under its method's header
+    for i, p in enumerate(kept):
+        if not p.split("\n", 1)[0].strip().isidentifier():
+            m = "kinematic" if "--method kinematic" in p else "unknown"
+            kept[i] = "" if m == method else f"{m}\n\n{p.strip()}\n\n"
+    kept = [p for p in kept if p]
+    new = head + section + "".join("## method " + p for p in kept)
+    out.write_text(new)
+    print(f"wrote {out}")
 
 
 if __name__ == "__main__":
