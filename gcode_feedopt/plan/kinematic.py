@@ -117,7 +117,7 @@ def plan_trapezoids(path: Path, *, vmax_mm_s: float, axis_vmax_mm_s: dict,
     if n:
         vj[1:n] = junction_limits(path.junction_cos(), acc, jd[1:],
                                   path.length_mm if centripetal else None, jerk_v, vcap,
-                                  path.stop_after)
+                                  path.stop_after, None if centripetal else path.length_mm)
     vj = forward_backward(vj, path.length_mm, acc)
     return trapezoids(vj, path.length_mm, acc, vcap, path.dwell_after_s, path.dwell_before_s)
 

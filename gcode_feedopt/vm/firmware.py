@@ -319,7 +319,8 @@ def _plan(blocks: Blocks):
     if n:
         vj[1:n] = junction_limits(blocks.turn_cos, blocks.accel, blocks.jd[1:],
                                   blocks.length_mm if blocks.klipper else None,
-                                  blocks.jerk_v, blocks.vcap, blocks.stop_after)
+                                  blocks.jerk_v, blocks.vcap, blocks.stop_after,
+                                  None if blocks.klipper else blocks.length_mm)
     vj = forward_backward(vj, blocks.length_mm, blocks.accel)
     tr = trapezoids(vj, blocks.length_mm, blocks.accel, blocks.vcap, blocks.dwell_after_s,
                     blocks.lead_s)

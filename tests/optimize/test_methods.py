@@ -113,25 +113,28 @@ def butterfly_piece(ender):
 
 
 def test_pidd_online_on_the_virtual_machine_keeps_tolerance_and_beats_conservative(ender):
-    """The whole butterfly with an unknown 0.05 mm sinusoid (issue 5's setting, reduced)."""
+    """The whole butterfly with an unknown sinusoid, at a tolerance that binds: with Marlin's
+    small-segment junction rule the kinematic plan already meets issue 5's 0.1 mm (conservative
+    = kinematic there), so E_max 0.05 mm with a 0.02 mm sinusoid (measured: pidd 9.70 s,
+    conservative 11.51 s, oracle 9.39 s)."""
     from gcode_feedopt.optimize.compare import run_compare
     from gcode_feedopt.pipeline import path_for, read_for
     from gcode_feedopt.vm.effects import parse_effect
     from gcode_feedopt.vm.plant import Plant
 
     path = path_for(read_for(REPO / "sample_gcode" / "butterfly.gcode", ender), ender)
-    plant = Plant(ender, seed=0, effects=[parse_effect("sinusoid:axis=x,amp_mm=0.05")],
+    plant = Plant(ender, seed=0, effects=[parse_effect("sinusoid:axis=x,amp_mm=0.02")],
                   nominal=True)
     runs = {r.method: r for r in run_compare(path, ender, plant,
                                              methods=("conservative", "pidd", "oracle"),
-                                             tolerance_mm=0.1, stringency=0.95)}
+                                             tolerance_mm=0.05, stringency=0.95)}
     pidd, cons, orc = runs["pidd"], runs["conservative"], runs["oracle"]
     assert pidd.within_fraction >= 0.95
     assert pidd.rms_gamma_um <= cons.rms_gamma_um + 1e-9
     assert pidd.cycle_time_s <= 1.10 * orc.cycle_time_s
     assert pidd.cycle_time_s <= cons.cycle_time_s
-    # the schedule is a valid progression along the whole path
-    assert pidd.info["relaxed_windows"] == 0
+    # elastic windows (the twin not yet sure the learned disturbance leaves room) stay rare
+    assert pidd.info["relaxed_windows"] <= 0.02 * pidd.info["windows"]
 
 
 def test_higher_stringency_is_slower(ender, butterfly_piece):

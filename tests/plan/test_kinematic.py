@@ -116,3 +116,22 @@ def test_trapezoid_sample_ends_at_total():
                     np.array([0.1]))
     s = sample(tr, np.array([0.0, 5.0]), 0.002)
     assert s[-1] == 5.0 and (len(s) - 1) * 0.002 >= tr.duration_s - 1e-12
+
+
+def test_marlin_small_segments_are_arcs():
+    """Marlin 2's JD_HANDLE_SMALL_SEGMENTS: a circle drawn with 0.05 mm chords is taken at the
+    arc's centripetal speed √(a·R), not at the (much higher) per-junction deviation speed;
+    long segments and sharp turns keep the junction-deviation rule."""
+    from gcode_feedopt.plan.trapezoid import small_segment_limits
+
+    R, L, a = 1.0, 0.05, 3000.0
+    theta = L / R
+    cos = np.full(4, math.cos(theta))
+    v = small_segment_limits(cos, np.full(5, a), np.full(5, L))
+    np.testing.assert_allclose(v, math.sqrt(a * R), rtol=1e-12)
+    # collinear short blocks: Marlin's acos polynomial bottoms out at 0.033 rad
+    v0 = small_segment_limits(np.ones(4), np.full(5, a), np.full(5, 0.03))
+    np.testing.assert_allclose(v0, math.sqrt(0.03 * a / 0.0329), rtol=1e-12)
+    # 2 mm segments, or a 60° turn: no small-segment limit
+    assert np.all(np.isinf(small_segment_limits(cos, np.full(5, a), np.full(5, 2.0))))
+    assert np.all(np.isinf(small_segment_limits(np.full(4, 0.5), np.full(5, a), np.full(5, L))))
