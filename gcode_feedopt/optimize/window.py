@@ -313,6 +313,7 @@ def violation(lp: LinearProgram, x: np.ndarray) -> float:
 
 
 _HIGHS = None
+_BASIS = None
 
 
 def _highs():
@@ -357,8 +358,15 @@ def solve_highs(lp: LinearProgram):
         m.a_matrix_.index_ = A.indices
         m.a_matrix_.value_ = A.data
         h.passModel(m)
+        global _BASIS
+        if _BASIS is not None and _BASIS[0] == (m.num_col_, m.num_row_):
+            # warm start from the previous LP's basis (the next sequential-LP iteration or
+            # window has the same structure): half the simplex iterations, same optima
+            h.setBasis(_BASIS[1])
         h.run()
         st = h.getModelStatus()
+        _BASIS = ((m.num_col_, m.num_row_), h.getBasis()) if st == highspy.HighsModelStatus.kOptimal \
+            else None
         it = int(h.getInfo().simplex_iteration_count)
         if st == highspy.HighsModelStatus.kOptimal:
             return STATUS_OPTIMAL, np.array(h.getSolution().col_value), it
