@@ -5,6 +5,7 @@ temp is removed on any exception)."""
 from __future__ import annotations
 
 import concurrent.futures as cf
+import os
 import pathlib
 from dataclasses import dataclass
 
@@ -66,6 +67,10 @@ def run_batch(folder: pathlib.Path, outdir: pathlib.Path | None, machine: str, o
     if outdir is not None:
         outdir.mkdir(parents=True, exist_ok=True)
     results: dict[str, JobResult] = {}
+    # the jobs are the parallelism: a twin method inside a job plans in one process unless
+    # the user set GCODE_FEEDOPT_JOBS (optimize/parallel.py)
+    if jobs > 1:
+        os.environ.setdefault("GCODE_FEEDOPT_JOBS", "1")
     with cf.ProcessPoolExecutor(max_workers=max(1, jobs)) as pool:
         futs = {pool.submit(run_one, str(f), str((outdir or folder) / f.name), machine,
                             opts_dict): f for f in files}
