@@ -296,7 +296,9 @@ class MpcPlanner:
                 if s_best is None:
                     return sol.status, None
                 if s_lin is s_best:
-                    delta *= 0.5
+                    # infeasible about the best verified plan itself: a smaller trust region
+                    # only shrinks the feasible set further, so keep the verified plan
+                    break
                 s_lin = s_best
                 continue
             s_new = np.minimum(sol.s_mm, s_max)
