@@ -70,6 +70,27 @@ class FreePlan:
         self.seg_accel = np.asarray(self.tr.accel_mm_s2, float)
         ext = np.asarray(path.de_mm, float) > 1e-9
         self.extruding = ext if ext.any() else np.ones_like(ext)
+        self._ext_cum = np.concatenate([[0], np.cumsum(self.extruding)])
+        # sharp vertices (the path turns back by more than 90°) between constrained segments:
+        # the actual position must not overshoot past them along the incoming direction
+        t_beg, t_end = path.end_tangents()
+        n = path.n_segments
+        if n > 1:
+            u_in = t_end[:-1, :2]
+            u_out = t_beg[1:, :2]
+            nin = np.linalg.norm(u_in, axis=1)
+            nout = np.linalg.norm(u_out, axis=1)
+            dot = np.sum(u_in * u_out, axis=1) / np.maximum(nin * nout, 1e-12)
+            sharp = (dot < 0.0) & (nin > 0.5) & (nout > 0.5) & \
+                (self.extruding[:-1] | self.extruding[1:]) & ~np.asarray(path.stop_after[:-1], bool)
+            j = np.flatnonzero(sharp)
+            self.vertex_s = np.asarray(path.s0_mm, float)[j + 1]
+            self.vertex_xy = np.asarray(path.end_mm, float)[j, :2]
+            self.vertex_u = u_in[j] / nin[j][:, None]
+        else:
+            self.vertex_s = np.zeros(0)
+            self.vertex_xy = np.zeros((0, 2))
+            self.vertex_u = np.zeros((0, 2))
 
     # -- the orbit cap -------------------------------------------------------------------
     def depart_time(self, s) -> np.ndarray:
@@ -110,10 +131,43 @@ class FreePlan:
         a, b = np.clip(self.path.segment_at(np.array([s_lo, s_hi], float)), 0, n - 1)
         return float(np.min(self.seg_accel[a:b + 1]))
 
-    def constrained(self, s) -> np.ndarray:
-        """bool: the contour error at path position s is constrained (extruding)."""
+    def overshoot_rows(self, s_bar, on, reach_mm: float, tol_mm: float):
+        """(k, u, b) half-planes u·x̃_k ≤ b = u·V + E_max for every horizon sample k (with
+        ``on``) within ``reach_mm`` of a sharp vertex V along the path: the paper's contour
+        error (the projection on the path normal at the commanded point) does not see the
+        actual position running on past a near-reversal, the distance to the path does."""
+        if self.vertex_s.size == 0:
+            return np.zeros(0, int), np.zeros((0, 2)), np.zeros(0)
+        s_bar = np.asarray(s_bar, float)
+        lo = np.searchsorted(self.vertex_s, s_bar - reach_mm, side="left")
+        hi = np.searchsorted(self.vertex_s, s_bar + reach_mm, side="right")
+        cnt = np.where(on, hi - lo, 0)
+        if cnt.sum() == 0:
+            return np.zeros(0, int), np.zeros((0, 2)), np.zeros(0)
+        kk = np.repeat(np.arange(s_bar.size), cnt)
+        vi = np.concatenate([np.arange(a, b) for a, b, c in zip(lo, hi, cnt) if c])
+        U = self.vertex_u[vi]
+        V = self.vertex_xy[vi]
+        # only where the command itself is not past the vertex (the path may lead on beyond
+        # it, e.g. a zigzag: being there is then on the path)
+        xy = self.path.position(s_bar[kk])[:, :2]
+        keep = np.sum(U * (xy - V), axis=1) <= 1e-9
+        kk, U, V = kk[keep], U[keep], V[keep]
+        b = np.sum(U * V, axis=1) + tol_mm
+        return kk, U, b
+
+    def constrained(self, s, s_before: float | None = None) -> np.ndarray:
+        """bool per sample: its contour error is constrained — some segment it covers since
+        the previous sample extrudes (the virtual machine counts a sample whose interval
+        deposits material, so a 0.05 mm travel right after an extrusion still counts).
+        ``s_before``: the sample before s[0] (default s[0] itself)."""
+        s = np.asarray(s, float)
         n = self.extruding.size
-        return self.extruding[np.clip(self.path.segment_at(np.asarray(s, float)), 0, n - 1)]
+        b = np.clip(self.path.segment_at(s), 0, n - 1)
+        prev = np.concatenate([[s[0] if s_before is None else s_before], s[:-1]]) if s.size else s
+        a = np.clip(self.path.segment_at(prev), 0, n - 1)
+        a = np.minimum(a, b)
+        return self._ext_cum[b + 1] - self._ext_cum[a] > 0
 
     # -- greedy continuation -----------------------------------------------------------------
     def greedy(self, s_prev: float, ds_prev: float, n_go: int, n_total: int, s_max: float):

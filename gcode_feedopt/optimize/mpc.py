@@ -50,6 +50,8 @@ LP_ACC_MARGIN = 0.995
 #: residue κ(ṡ − ṡ̄)² is this fraction of A_max; lower bound, mm/s.
 TRUST_ACC_FRAC = 0.01
 TRUST_MIN_MM_S = 1.0
+#: Lag/lead of the actual position behind the command covered by the overshoot rows, s.
+OVERSHOOT_LAG_S = 0.02
 #: Secant of the orbit cap's slope Φ' behind s̄ (mm), and its clip (Φ' = ratio of F's
 #: speeds one sample apart; large only leaving a standstill).
 CAP_SLOPE_H_MM = 0.05
@@ -125,6 +127,9 @@ class MpcPlanner:
         #: with ``free``: accept a window's greedy continuation along the free plan without
         #: an LP when it verifies (it is then the LP's optimum; see free.py)
         self.screen = bool(screen) and free is not None
+        #: sharp vertices within this path distance of a sample get an overshoot row (mm):
+        #: how far the actual position can lag or lead the command (≈ V_max × 20 ms)
+        self.overshoot_reach = max(1.0, OVERSHOOT_LAG_S * float(vmax_mm_s))
         self.pred = predictor
         self.ts = float(ts_s)
         self.vmax = float(vmax_mm_s)
@@ -182,7 +187,7 @@ class MpcPlanner:
         ds_max = self._vcap(s_bar) * self.ts
         jmax = None if self.st.jmax_mm_s3 is None else np.full(2, self.st.jmax_mm_s3)
         amax = self.amax * LP_ACC_MARGIN
-        acc_t = rows = cap_next = cap_slope = None
+        acc_t = rows = cap_next = cap_slope = halfplanes = None
         past_ds = 0.0
         if self.free is not None:
             f = self.free
@@ -199,7 +204,8 @@ class MpcPlanner:
             # the LP takes the smaller per-move acceleration where a span touches two
             # segments (verification allows the larger, which F itself may use)
             acc_t = f.accel(ext[:-2], ext[2:], smallest=True)
-            rows = f.constrained(s_bar)
+            rows = f.constrained(s_bar, s_start)
+            halfplanes = f.overshoot_rows(s_bar, rows, self.overshoot_reach, self.tol)
             past_ds = s_start - ext[0]
             amax = None
         ds_max[nw + nb:] = 0.0
@@ -209,7 +215,7 @@ class MpcPlanner:
             amax_mm_s2=amax, tol_mm=self.tol, z=self.z, err_bar_mm=err_bar,
             err_jac=err_jac, normal=normal, sigma_mm=sig, jmax_mm_s3=jmax, trust_mm=trust,
             trust_v_mm_s=trust_v, acc_t_mm_s2=acc_t, past_ds_mm=past_ds, contour_rows=rows,
-            cap_next_mm=cap_next, cap_slope=cap_slope)
+            cap_next_mm=cap_next, cap_slope=cap_slope, halfplanes=halfplanes, std_xy_mm=std)
 
     def _s_before(self) -> float:
         """s of the sample before the last committed one (the last one at the start)."""
@@ -226,7 +232,14 @@ class MpcPlanner:
         bound = np.abs(mu) + self.z * sig
         if self.free is not None:
             f = self.free
-            bound = np.where(f.constrained(s), bound, 0.0)
+            on = f.constrained(s, self.s_hist[-1])
+            bound = np.where(on, bound, 0.0)
+            kk, U, b = f.overshoot_rows(s, on, self.overshoot_reach, self.tol)
+            if kk.size:
+                over = (np.sum(U * mean[:, kk].T, axis=1)
+                        + self.z * np.sqrt((U[:, 0] * std[0, kk]) ** 2 + (U[:, 1] * std[1, kk]) ** 2)
+                        - (b - self.tol))
+                np.maximum.at(bound, kk, over)
             ext = np.concatenate([[self._s_before(), self.s_hist[-1]], s])
             ds = np.diff(ext)
             a_t = f.accel(ext[:-2], ext[2:])
@@ -460,7 +473,7 @@ class MpcPlanner:
             if done.size:
                 take = int(done[0]) + 1  # at rest on the piece end: do not idle there
             if self.free is not None:
-                self.stats["pred_on"].append(self.free.constrained(accepted[:take]))
+                self.stats["pred_on"].append(self.free.constrained(accepted[:take], s_start))
             self.stats["pred_mean_mm"].append(mu[:take])
             self.stats["pred_std_mm"].append(sig[:take])
             self.stats["pred_xy_mm"].append(self._last_mean[:, :take].T)

@@ -90,6 +90,9 @@ class WindowData:
         cap_next_mm, cap_slope: optional (n,) orbit cap s_k ≤ Φ(s_{k−1}) linearised at
             s̄_{k−1}: Φ̄_k = Φ(s̄_{k−1}) and φ_k = Φ'(s̄_{k−1}) (optimize/free.py); rows
             s_k − φ_k s_{k−1} ≤ Φ̄_k − φ_k s̄_{k−1} (the first one, s_{−1} = s_start, exact).
+        halfplanes: optional (k (m,), u (m, 2), b (m,)): chance rows on the predicted actual
+            position itself, u·x̃_k + z σ_u ≤ b (overshoot past a sharp vertex, mpc.py), with
+            ``std_xy_mm`` (2, n) the per-axis std at the linearisation point.
     """
 
     ts_s: float
@@ -116,6 +119,8 @@ class WindowData:
     past_ds_mm: float = 0.0
     cap_next_mm: np.ndarray | None = None
     cap_slope: np.ndarray | None = None
+    halfplanes: tuple | None = None
+    std_xy_mm: np.ndarray | None = None
 
     @property
     def n(self) -> int:
@@ -161,7 +166,8 @@ class LinearProgram:
     lb: np.ndarray
     ub: np.ndarray
     ds_ref_mm: float
-    row_kind: np.ndarray  # (m,) int: 0 path end, 1 accel, 2 jerk, 3 contour, 4 trust, 5 cap
+    row_kind: np.ndarray  # (m,) int: 0 path end, 1 accel, 2 jerk, 3 contour, 4 trust, 5 cap,
+    #                       6 overshoot half-plane
     row_sample: np.ndarray  # (m,) int: horizon sample of the row (its last nonzero column)
 
     def pattern(self) -> np.ndarray:
@@ -289,6 +295,27 @@ def build_lp(w: WindowData) -> LinearProgram:
             hi.append((cap - sgn * mu0 - w.z * sig0)[mask])
             kinds.append(np.full(int(mask.sum()), 3))
             samples.append(np.flatnonzero(mask))
+
+    if w.halfplanes is not None and len(w.halfplanes[0]):
+        kk, U, b = w.halfplanes
+        kk = np.asarray(kk, int)
+        R = np.zeros((kk.size, n))
+        const = np.zeros(kk.size)
+        sig_u = np.zeros(kk.size)
+        for a in range(2):
+            tan = w.tan_bar[:, a]
+            J = w.err_jac[a]
+            # x̃_a = x_d,a − ε_a, both affine in Δs through s = s_start + L Δs
+            xt0 = w.pos_bar_mm[:, a] + tan * s_off - (w.err_bar_mm[a] + J @ (tan * s_off))
+            Xt = tan[:, None] * L - (J * tan[None, :]) @ L
+            R += U[:, a][:, None] * Xt[kk]
+            const += U[:, a] * xt0[kk]
+            sig_u += (U[:, a] * w.std_xy_mm[a][kk]) ** 2
+        rows.append(R * ds_ref)
+        lo.append(np.full(kk.size, -np.inf))
+        hi.append(b - w.z * np.sqrt(sig_u) - const)
+        kinds.append(np.full(kk.size, 6))
+        samples.append(kk)
 
     c = (n - np.arange(n)) / n  # Σ_k s_k = const + Σ_i (n − i) Δs_i
     lb = np.zeros(n)
