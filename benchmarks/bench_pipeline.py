@@ -63,7 +63,9 @@ def run_case(path: pathlib.Path, method: str, machine: str) -> dict:
     d = json.loads(rep.read_text())
     return {"moves": d["moves"], "wall_s": wall, "stages": d["stage_wall_s"],
             "print_s": d["output_time_s"], "peak_mb": peak_kb / 1024.0,
-            "worker_mb": child_kb / 1024.0, "workers": d.get("extra", {}).get("parallel_workers", 0)}
+            "worker_mb": child_kb / 1024.0, "workers": d.get("extra", {}).get("parallel_workers", 0),
+            "plan_s": d.get("plan_time_s"), "pred_max": d.get("predicted_max_contour_error_mm"),
+            "executed": d.get("extra", {}).get("executed"), "input_s": d.get("input_time_s")}
 
 
 def machine_text() -> str:
@@ -105,6 +107,15 @@ def main():
                 + f" {r['peak_mb']:>8.0f} {r['worker_mb']:>9.0f} {r['print_s'] / r['wall_s']:>7.0f}x")
         print(line, flush=True)
         lines.append(line)
+    for name, r in rows.items():
+        ex = r.get("executed")
+        if ex and r.get("pred_max") is not None:
+            line = (f"{name}: print {r['input_s']:.0f} s as sliced -> plan {r['plan_s']:.1f} s, "
+                    f"predicted worst {r['pred_max']:.3f} mm; executed (firmware model, nominal "
+                    f"plant) {ex['time_s']:.1f} s, worst {ex['max_contour_error_mm']:.3f} mm, "
+                    f"{100 * ex['within_fraction']:.2f} % within")
+            print(line)
+            lines.append(line)
     if "benchy" in rows and "benchy4" in rows:
         ratio = rows["benchy4"]["wall_s"] / rows["benchy"]["wall_s"]
         msg = f"scaling: 4x file takes {ratio:.2f}x the time of 1x (target <= 4.5)"

@@ -25,7 +25,7 @@ import numpy as np
 #: history handed to a worker, samples (≥ the twin's n_taps + feature lags)
 HISTORY_PAD = 64
 #: chunks per worker (load balance: the LP-heavy stretches are not evenly spread)
-CHUNKS_PER_WORKER = 4
+CHUNKS_PER_WORKER = 16
 #: below this many free-plan samples the process start-up is not worth it
 MIN_PARALLEL_SAMPLES = 60_000
 
