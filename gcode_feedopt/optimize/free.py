@@ -180,9 +180,12 @@ class FreePlan:
         ts = self.ts
         ts2 = ts * ts
         T0 = float(self.depart_time(np.array([s_prev]))[0])
-        back = float(evaluate(self.tr, self.s0, np.array([T0 - ts]))[0]) if ds_prev > 0 else s_prev
+        # on the orbit when F, one sample before leaving s_prev, was where we were one sample
+        # ago (at rest after a stop of ours while F moves on, we are not)
+        back = float(evaluate(self.tr, self.s0, np.array([T0 - ts]))[0])
         go = None
-        if abs(back - (s_prev - ds_prev)) <= 1e-9 * max(1.0, abs(s_prev)):
+        self.last_on_orbit = abs(back - (s_prev - ds_prev)) <= 1e-9 * max(1.0, abs(s_prev))
+        if self.last_on_orbit:
             go = evaluate(self.tr, self.s0, T0 + ts * np.arange(1, n_go + 1))
             # F is at rest on every exact stop, so a piece end inside is reached at rest
             go = np.maximum.accumulate(np.minimum(go, s_max))
@@ -192,7 +195,10 @@ class FreePlan:
             for k in range(n_go):
                 cap = float(self.step_cap(np.array([s]))[0])
                 a = float(self.accel(np.array([s - ds]), np.array([s + cap]))[0])
-                new = max(min(cap, ds + a * ts2, s_max - s), 0.0)
+                new = min(cap, ds + a * ts2, s_max - s)
+                # never brake harder than the acceleration allows (above F after an LP
+                # window, the cap may fall faster than we can slow down: verification decides)
+                new = max(new, min(ds - self.accel_min(s - ds, s + ds) * ts2, s_max - s), 0.0)
                 s, ds = s + new, new
                 go[k] = s
         out = np.empty(n_total)
