@@ -1,10 +1,10 @@
 """HiGHS vs OSQP on the same window problems (issue 5: choose the solver by measurement).
 
-Runs pidd (offline) over the first LINES lines of the butterfly with each solver and prints
-window count, LP solves, solve rate (optimal / solves), solver seconds, mean and p95 time per
-solve, and the cycle time reached.
+Runs pidd (offline, one process) over the first LINES lines of a file (default the butterfly)
+with each solver and prints window count, LP solves, solve rate (optimal / solves), solver
+seconds, mean and p95 time per solve, and the cycle time reached.
 
-    python benchmarks/bench_window_solvers.py [--lines 600]
+    python benchmarks/bench_window_solvers.py [--lines 600] [--file PATH] [--solvers highs,osqp]
 """
 
 from __future__ import annotations
@@ -16,6 +16,7 @@ import time
 
 import numpy as np
 
+from gcode_feedopt.errors import FeedOptError
 from gcode_feedopt.optimize import MpcSettings
 from gcode_feedopt.optimize.methods import make_twin_predictor, plan_mpc
 from gcode_feedopt.pipeline import path_for, read_for
@@ -28,21 +29,28 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--lines", type=int, default=600)
     ap.add_argument("--machine", default="ender3pro")
+    ap.add_argument("--file", default=str(REPO / "sample_gcode" / "butterfly.gcode"))
+    ap.add_argument("--solvers", default="highs,osqp")
     a = ap.parse_args()
     prof = load_profile(a.machine)
-    lines = (REPO / "sample_gcode" / "butterfly.gcode").read_bytes().splitlines(keepends=True)
+    lines = pathlib.Path(a.file).read_bytes().splitlines(keepends=True)
     tmp = pathlib.Path(tempfile.mkdtemp()) / "piece.gcode"
     tmp.write_bytes(b"".join(lines[:a.lines]))
     path = path_for(read_for(tmp, prof), prof)
-    print(f"butterfly, first {a.lines} lines, {a.machine}, pidd offline, E_max "
+    print(f"{pathlib.Path(a.file).name}, first {a.lines} lines, {a.machine}, pidd offline, E_max "
           f"{prof.limits.tolerance_mm} mm, η {prof.limits.stringency}")
     print(f"{'solver':>7} {'windows':>8} {'LPs':>6} {'LP ok %':>8} {'solver s':>9} "
           f"{'mean ms':>8} {'p95 ms':>7} {'cycle s':>8} {'wall s':>7}")
-    for solver in ("highs", "osqp"):
+    for solver in a.solvers.split(","):
         pred = make_twin_predictor(prof, "pidd", learn=False)
         t0 = time.perf_counter()
-        s = plan_mpc(path, prof, pred, method="pidd", tolerance_mm=prof.limits.tolerance_mm,
-                     stringency=prof.limits.stringency, settings=MpcSettings(solver=solver))
+        try:
+            s = plan_mpc(path, prof, pred, method="pidd", tolerance_mm=prof.limits.tolerance_mm,
+                         stringency=prof.limits.stringency, settings=MpcSettings(solver=solver),
+                         workers=1)
+        except FeedOptError as exc:
+            print(f"{solver:>7} failed after {time.perf_counter() - t0:.1f} s: {exc}")
+            continue
         wall = time.perf_counter() - t0
         info = s.info
         times = np.asarray(info.get("_solve_times_s", []) or [0.0])
