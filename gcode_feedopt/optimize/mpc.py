@@ -483,8 +483,7 @@ class MpcPlanner:
             self.stats["pred_mean_mm"].append(mu[:take])
             self.stats["pred_std_mm"].append(sig[:take])
             self.stats["pred_xy_mm"].append(self._last_mean[:, :take].T)
-            # the reference of the next window continues this plan from the committed end
-            self._prev = accepted[take - nw:] if take > nw else accepted
+            self._prev = accepted
             progress = accepted[take - 1] - s_start
             stall = stall + 1 if progress <= 1e-12 else 0
             if stall > 50:
