@@ -6,7 +6,7 @@ checked against the input:
 1. every line we did not re-time or update is byte-identical and in the same order;
 2. the extrusion of every original move equals the sum over its sub-moves within 1e-6 mm;
 3. every original move still ends at its original coordinates (1e-9 mm) — so the part is the
-   same part;
+   same part; no line we added other than the re-timed pieces moves the machine;
 4. the output has exactly one more ident line than the input.
 
 Any failure raises VerifyError and nothing is written.
@@ -66,9 +66,14 @@ def verify(program: Program, result: WriteResult, *, flavour: str, g91_relative_
     de_sum = np.zeros(n_in)
     last_end = {}
     last_e = {}
+    tags = result.tags
     for mv in out.moves:
         i = owner_of_line.get(mv.line_no)
         if i is None:
+            if tags[mv.line_no][0] != T_ORIG:
+                # only re-timed pieces and untouched input lines may move the machine
+                raise VerifyError(f"{name}:{mv.line_no + 1}: a line we added moves the machine; "
+                                  "nothing was written")
             continue
         de_sum[i] += mv.de_mm
         last_end[i] = mv.end_mm
