@@ -13,6 +13,10 @@ coordinates, with the modal state resolved:
   exact stop (and take time) but move nothing we re-time.
 - Klipper extended commands (``NAME KEY=VALUE``), ``N`` line numbers with ``*`` checksums and
   unknown codes pass through untouched; a numbered motion line is tracked but never re-timed.
+
+Plain ``G0/G1 X.. Y.. Z.. E.. F..`` lines (nearly every line of a slicer's file) are split into
+words by a regular expression that accepts only what pygcode reads the same way; every other
+line goes through pygcode (``tests/gcode/test_reader_fast.py`` checks the two agree).
 """
 
 from __future__ import annotations
@@ -214,6 +218,13 @@ def _words(code: str, name: str, line_no: int) -> list[tuple[str, str]] | None:
 _NUM = re.compile(r"([A-Za-z])\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)")
 
 
+#: A plain G0/G1 line: upper-case words separated by spaces, numbers as pygcode reads them
+#: (no sign +, no exponent), an optional ``;`` comment, the line's ending. Anything else goes
+#: through pygcode.
+_FAST_MOTION = re.compile(r"G0?([01])((?: +[XYZEF]-?(?:\d+\.?\d*|\.\d+))*) *(?:;[^\r\n]*)?(?:\r?\n)?\Z")
+_FAST_WORD = re.compile(r"([XYZEF])(-?(?:\d+\.?\d*|\.\d+))")
+
+
 def _raw_values(code: str) -> dict[str, str]:
     """The value texts as written (pygcode normalises numbers; we need them verbatim so an
     original end point can be reproduced exactly)."""
@@ -231,13 +242,67 @@ def _f(text: str, name: str, line_no: int, letter: str) -> float:
     return v
 
 
+def _tokenize(text: str, name: str, i: int, events: list, n_moves: int):
+    """The words of one line by pygcode: (code, numbered, gcodes, mcodes, tcodes, params), or
+    None when the line needs no further work (comment, unknown code, Klipper command, a line
+    pygcode cannot read; events are appended to ``events``)."""
+    stripped = text.lstrip()
+    if not stripped or stripped[0] == ";":
+        return None
+    code, numbered = _strip(text)
+    if not code:
+        return None
+    first = code[0].upper()
+    ext = _EXTENDED.match(code)
+    if ext and not re.match(r"^[A-Za-z]\s*[-+.\d]", code):
+        # Klipper extended command / macro: NAME KEY=VALUE ...
+        cmd = ext.group(1).upper()
+        params = {k.upper(): v.strip("\"'") for k, v in _KEYVAL.findall(code[ext.end():])}
+        numeric = {}
+        for k, v in params.items():
+            try:
+                numeric[k] = float(v)
+            except ValueError:
+                numeric[k] = v
+        events.append(Event(i, cmd, numeric, stop=cmd not in NOSYNC_EXTENDED, dwell_s=0.0,
+                            move_index=n_moves))
+        return None
+    if first not in "GMT":
+        return None  # unknown code: passes through untouched
+    words = _words(code, name, i)
+    if words is None and re.match(r"^[Gg]0*[0-3](?![0-9.])", code):
+        # a motion the firmware will run but we cannot read: refuse rather than lose track
+        raise GCodeError(f"{name}:{i + 1}: cannot read the motion line {code!r} (a word "
+                         "without a value?); fix the line, e.g. 'G1 X10 F1200'")
+    if words is None:
+        events.append(Event(i, code.split()[0].upper(), {}, stop=True, dwell_s=0.0,
+                            move_index=n_moves))
+        return None
+    raw_vals = _raw_values(code)
+    gcodes = [v for (L, v) in words if L == "G"]
+    mcodes = [v for (L, v) in words if L == "M"]
+    tcodes = [v for (L, v) in words if L == "T"]
+    params = {}
+    for L, v in words:
+        if L in "GMN" or (L == "T" and not (gcodes or mcodes)):
+            continue
+        params[L] = raw_vals.get(L, v)
+    if gcodes or mcodes:
+        tcodes = []  # "M204 P500 T500", "M104 T1 S200": T is a parameter there
+    if any(v in ("", None) for v in params.values()):
+        raise GCodeError(f"{name}:{i + 1}: a word has no value in {code!r}; give each "
+                         "word a number or remove it")
+    return code, numbered, gcodes, mcodes, tcodes, params
+
+
 #: Coordinates beyond this are refused as absurd (no machine is 100 m long), mm.
 ABSURD_MM = 1e5
 
 
 def read_program(data: bytes, name: str = "<input>", *, flavour: str = "marlin",
                  g91_relative_e: bool = True, retract_mm: float = 0.0,
-                 retract_speed_mm_s: float = 0.0, e_feed_mm_s: float = 25.0) -> Program:
+                 retract_speed_mm_s: float = 0.0, e_feed_mm_s: float = 25.0,
+                 fast: bool = True) -> Program:
     """Parse G-code bytes into a Program.
 
     Args:
@@ -248,6 +313,8 @@ def read_program(data: bytes, name: str = "<input>", *, flavour: str = "marlin",
         retract_mm, retract_speed_mm_s: firmware retraction (G10/G11) length and speed, so the
             dwell they cause can be estimated.
         e_feed_mm_s: default extruder speed for E-only moves without F.
+        fast: read plain ``G0/G1 X.. Y.. Z.. E.. F..`` lines with a regular expression instead
+            of pygcode (same words, same Program; ``False`` only to test that).
     """
     check_binary(data, name)
     if not data.strip():
@@ -271,52 +338,18 @@ def read_program(data: bytes, name: str = "<input>", *, flavour: str = "marlin",
             processed = i
             continue
         text = _decode(raw)
-        stripped = text.lstrip()
-        if not stripped or stripped[0] == ";":
-            continue
-        code, numbered = _strip(text)
-        if not code:
-            continue
-        first = code[0].upper()
-        ext = _EXTENDED.match(code)
-        if ext and not re.match(r"^[A-Za-z]\s*[-+.\d]", code):
-            # Klipper extended command / macro: NAME KEY=VALUE ...
-            cmd = ext.group(1).upper()
-            params = {k.upper(): v.strip("\"'") for k, v in _KEYVAL.findall(code[ext.end():])}
-            numeric = {}
-            for k, v in params.items():
-                try:
-                    numeric[k] = float(v)
-                except ValueError:
-                    numeric[k] = v
-            events.append(Event(i, cmd, numeric, stop=cmd not in NOSYNC_EXTENDED, dwell_s=0.0,
-                                move_index=len(moves)))
-            continue
-        if first not in "GMT":
-            continue  # unknown code: passes through untouched
-        words = _words(code, name, i)
-        if words is None and re.match(r"^[Gg]0*[0-3](?![0-9.])", code):
-            # a motion the firmware will run but we cannot read: refuse rather than lose track
-            raise GCodeError(f"{name}:{i + 1}: cannot read the motion line {code!r} (a word "
-                             "without a value?); fix the line, e.g. 'G1 X10 F1200'")
-        if words is None:
-            events.append(Event(i, code.split()[0].upper(), {}, stop=True, dwell_s=0.0,
-                                move_index=len(moves)))
-            continue
-        raw_vals = _raw_values(code)
-        gcodes = [v for (L, v) in words if L == "G"]
-        mcodes = [v for (L, v) in words if L == "M"]
-        tcodes = [v for (L, v) in words if L == "T"]
-        params = {}
-        for L, v in words:
-            if L in "GMN" or (L == "T" and not (gcodes or mcodes)):
+        fm = _FAST_MOTION.match(text) if fast else None
+        if fm is not None:
+            # the common `G0/G1 X.. Y.. E.. F..` line: the same words pygcode would give
+            code = fm.group(0).split(";", 1)[0].strip()
+            numbered = False
+            gcodes, mcodes, tcodes = [fm.group(1)], [], []
+            params = dict(_FAST_WORD.findall(fm.group(2)))
+        else:
+            tok = _tokenize(text, name, i, events, len(moves))
+            if tok is None:
                 continue
-            params[L] = raw_vals.get(L, v)
-        if gcodes or mcodes:
-            tcodes = []  # "M204 P500 T500", "M104 T1 S200": T is a parameter there
-        if any(v in ("", None) for v in params.values()):
-            raise GCodeError(f"{name}:{i + 1}: a word has no value in {code!r}; give each "
-                             "word a number or remove it")
+            code, numbered, gcodes, mcodes, tcodes, params = tok
         # F is modal for every code
         feed_txt = params.get("F")
         motion = None
