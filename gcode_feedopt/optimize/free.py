@@ -52,22 +52,30 @@ def evaluate(tr: Trapezoids, s0_mm: np.ndarray, t_s: np.ndarray) -> np.ndarray:
     return np.where(t >= tr.t0_s[-1], s0_mm[-1], s)
 
 
-class FreePlan:
-    """F of a path (a kinematic Schedule with its trapezoids) and the constraints it defines.
+def ranges(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Flattened [lo_i, hi_i) integer ranges: (owner i of each element, element value)."""
+    lo = np.asarray(lo, np.int64)
+    cnt = np.maximum(np.asarray(hi, np.int64) - lo, 0)
+    owner = np.repeat(np.arange(lo.size), cnt)
+    start = np.concatenate([[0], np.cumsum(cnt)[:-1]]) if cnt.size else cnt
+    val = np.arange(int(cnt.sum()), dtype=np.int64) - np.repeat(start - lo, cnt)
+    return owner, val
+
+
+class ContourRules:
+    """Which samples' contour error is constrained, and the overshoot half-planes at sharp
+    vertices, on a path (shared by the window optimizer and the slow-down optimizer).
 
     Attributes:
-        s_mm: (K,) F sampled at Ts. ts: Ts.
-        seg_accel: (N,) per-segment tangential acceleration, mm/s².
-        extruding: (N,) bool, segments whose contour error is constrained.
+        extruding: (N,) bool, segments whose contour error is constrained (every segment when
+            the file never extrudes, e.g. a CNC job).
+        vertex_s, vertex_xy, vertex_u: (V,), (V, 2), (V, 2) path position, XY and incoming unit
+            direction of every vertex where the path turns back by more than 90° between
+            constrained segments (not at an exact stop).
     """
 
-    def __init__(self, path, schedule):
+    def __init__(self, path):
         self.path = path
-        self.tr: Trapezoids = schedule.info["trapezoids"]
-        self.s_mm = np.asarray(schedule.s_mm, float)
-        self.ts = float(schedule.ts_s)
-        self.s0 = np.asarray(path.s0_mm, float)
-        self.seg_accel = np.asarray(self.tr.accel_mm_s2, float)
         ext = np.asarray(path.de_mm, float) > 1e-9
         self.extruding = ext if ext.any() else np.ones_like(ext)
         self._ext_cum = np.concatenate([[0], np.cumsum(self.extruding)])
@@ -91,6 +99,87 @@ class FreePlan:
             self.vertex_s = np.zeros(0)
             self.vertex_xy = np.zeros((0, 2))
             self.vertex_u = np.zeros((0, 2))
+
+    def overshoot_rows(self, s_bar, on, reach_mm: float, tol_mm: float):
+        """(k, u, b) half-planes u·x̃_k ≤ b = u·V + E_max for every horizon sample k (with
+        ``on``) within ``reach_mm`` of a sharp vertex V along the path: the paper's contour
+        error (the projection on the path normal at the commanded point) does not see the
+        actual position running on past a near-reversal, the distance to the path does."""
+        if self.vertex_s.size == 0:
+            return np.zeros(0, int), np.zeros((0, 2)), np.zeros(0)
+        s_bar = np.asarray(s_bar, float)
+        lo = np.searchsorted(self.vertex_s, s_bar - reach_mm, side="left")
+        hi = np.searchsorted(self.vertex_s, s_bar + reach_mm, side="right")
+        cnt = np.where(on, hi - lo, 0)
+        if cnt.sum() == 0:
+            return np.zeros(0, int), np.zeros((0, 2)), np.zeros(0)
+        kk = np.repeat(np.arange(s_bar.size), cnt)
+        vi = np.concatenate([np.arange(a, b) for a, b, c in zip(lo, hi, cnt) if c])
+        U = self.vertex_u[vi]
+        V = self.vertex_xy[vi]
+        # only where the command itself is not past the vertex (the path may lead on beyond
+        # it, e.g. a zigzag: being there is then on the path)
+        xy = self.path.position(s_bar[kk])[:, :2]
+        keep = np.sum(U * (xy - V), axis=1) <= 1e-9
+        kk, U, V = kk[keep], U[keep], V[keep]
+        b = np.sum(U * V, axis=1) + tol_mm
+        return kk, U, b
+
+    def overshoot_pairs(self, s, on, reach_mm: float):
+        """Every (sample k, sharp vertex) pair of :meth:`overshoot_rows`, vectorized for whole
+        plans: (k (m,), u (m, 2), V (m, 2)); the row is u·(x̃_k − V) ≤ E_max."""
+        if self.vertex_s.size == 0:
+            return np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((0, 2))
+        s = np.asarray(s, float)
+        lo = np.searchsorted(self.vertex_s, s - reach_mm, side="left")
+        hi = np.searchsorted(self.vertex_s, s + reach_mm, side="right")
+        hi = np.where(on, hi, lo)
+        kk, vi = ranges(lo, hi)
+        U, V = self.vertex_u[vi], self.vertex_xy[vi]
+        xy = self.path.position(s[kk])[:, :2]
+        keep = np.sum(U * (xy - V), axis=1) <= 1e-9
+        return kk[keep], U[keep], V[keep]
+
+    def constrained_pairs(self, s, s_prev) -> np.ndarray:
+        """:meth:`constrained` with the previous sample of every sample given (whole plans
+        evaluated in windows)."""
+        n = self.extruding.size
+        b = np.clip(self.path.segment_at(np.asarray(s, float)), 0, n - 1)
+        a = np.minimum(np.clip(self.path.segment_at(np.asarray(s_prev, float)), 0, n - 1), b)
+        return self._ext_cum[b + 1] - self._ext_cum[a] > 0
+
+    def constrained(self, s, s_before: float | None = None) -> np.ndarray:
+        """bool per sample: its contour error is constrained — some segment it covers since
+        the previous sample extrudes (the virtual machine counts a sample whose interval
+        deposits material, so a 0.05 mm travel right after an extrusion still counts).
+        ``s_before``: the sample before s[0] (default s[0] itself)."""
+        s = np.asarray(s, float)
+        n = self.extruding.size
+        b = np.clip(self.path.segment_at(s), 0, n - 1)
+        prev = np.concatenate([[s[0] if s_before is None else s_before], s[:-1]]) if s.size else s
+        a = np.clip(self.path.segment_at(prev), 0, n - 1)
+        a = np.minimum(a, b)
+        return self._ext_cum[b + 1] - self._ext_cum[a] > 0
+
+
+class FreePlan(ContourRules):
+    """F of a path (a kinematic Schedule with its trapezoids) and the constraints it defines.
+
+    Attributes:
+        s_mm: (K,) F sampled at Ts. ts: Ts.
+        seg_accel: (N,) per-segment tangential acceleration, mm/s².
+        extruding, vertex_*: see ContourRules.
+    """
+
+    def __init__(self, path, schedule):
+        super().__init__(path)
+        self.tr: Trapezoids = schedule.info["trapezoids"]
+        self.s_mm = np.asarray(schedule.s_mm, float)
+        self.ts = float(schedule.ts_s)
+        self.s0 = np.asarray(path.s0_mm, float)
+        self.seg_accel = np.asarray(self.tr.accel_mm_s2, float)
+        #: (N,) time F needs to stop from each segment's cruise speed at its acceleration, s
+        self.stop_time_s = np.asarray(self.tr.vc_mm_s, float) / self.seg_accel
 
     # -- the orbit cap -------------------------------------------------------------------
     def depart_time(self, s) -> np.ndarray:
@@ -130,44 +219,6 @@ class FreePlan:
         n = self.seg_accel.size
         a, b = np.clip(self.path.segment_at(np.array([s_lo, s_hi], float)), 0, n - 1)
         return float(np.min(self.seg_accel[a:b + 1]))
-
-    def overshoot_rows(self, s_bar, on, reach_mm: float, tol_mm: float):
-        """(k, u, b) half-planes u·x̃_k ≤ b = u·V + E_max for every horizon sample k (with
-        ``on``) within ``reach_mm`` of a sharp vertex V along the path: the paper's contour
-        error (the projection on the path normal at the commanded point) does not see the
-        actual position running on past a near-reversal, the distance to the path does."""
-        if self.vertex_s.size == 0:
-            return np.zeros(0, int), np.zeros((0, 2)), np.zeros(0)
-        s_bar = np.asarray(s_bar, float)
-        lo = np.searchsorted(self.vertex_s, s_bar - reach_mm, side="left")
-        hi = np.searchsorted(self.vertex_s, s_bar + reach_mm, side="right")
-        cnt = np.where(on, hi - lo, 0)
-        if cnt.sum() == 0:
-            return np.zeros(0, int), np.zeros((0, 2)), np.zeros(0)
-        kk = np.repeat(np.arange(s_bar.size), cnt)
-        vi = np.concatenate([np.arange(a, b) for a, b, c in zip(lo, hi, cnt) if c])
-        U = self.vertex_u[vi]
-        V = self.vertex_xy[vi]
-        # only where the command itself is not past the vertex (the path may lead on beyond
-        # it, e.g. a zigzag: being there is then on the path)
-        xy = self.path.position(s_bar[kk])[:, :2]
-        keep = np.sum(U * (xy - V), axis=1) <= 1e-9
-        kk, U, V = kk[keep], U[keep], V[keep]
-        b = np.sum(U * V, axis=1) + tol_mm
-        return kk, U, b
-
-    def constrained(self, s, s_before: float | None = None) -> np.ndarray:
-        """bool per sample: its contour error is constrained — some segment it covers since
-        the previous sample extrudes (the virtual machine counts a sample whose interval
-        deposits material, so a 0.05 mm travel right after an extrusion still counts).
-        ``s_before``: the sample before s[0] (default s[0] itself)."""
-        s = np.asarray(s, float)
-        n = self.extruding.size
-        b = np.clip(self.path.segment_at(s), 0, n - 1)
-        prev = np.concatenate([[s[0] if s_before is None else s_before], s[:-1]]) if s.size else s
-        a = np.clip(self.path.segment_at(prev), 0, n - 1)
-        a = np.minimum(a, b)
-        return self._ext_cum[b + 1] - self._ext_cum[a] > 0
 
     # -- greedy continuation -----------------------------------------------------------------
     def greedy(self, s_prev: float, ds_prev: float, n_go: int, n_total: int, s_max: float):

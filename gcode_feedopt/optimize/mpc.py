@@ -142,6 +142,7 @@ class MpcPlanner:
         amin = float(np.min(self.amax))
         self.n_brake = settings.n_brake if settings.n_brake is not None else \
             int(math.ceil(self.vmax / (amin * self.ts))) + 2
+        self._nb_default = self.n_brake
         self.n = settings.n_window + self.n_brake + settings.n_hold
         self.s_hist: list[float] = []
         self.cmd_hist: list[np.ndarray] = []
@@ -411,10 +412,27 @@ class MpcPlanner:
             if self._prev is not None:
                 self._prev = None
 
+    def _size_horizon(self, s_start: float, s_max: float) -> None:
+        """With the free plan: the braking stretch must stop from the fastest speed F has on
+        the segments this horizon can reach, at their own per-move acceleration (a file's own
+        M204 may be far below the profile's A_max: at 500 mm/s² a stretch sized for 3000 mm/s²
+        caps every window at ~15 mm/s through the terminal condition)."""
+        if self.free is None or self.st.n_brake is not None:
+            return
+        f = self.free
+        nb = self._nb_default
+        for _ in range(2):  # the reach depends on the stretch: settle it
+            reach = self.vmax * self.ts * (self.st.n_window + nb)
+            lo, hi = np.clip(self.geom.segment_at(np.array([s_start, min(s_start + reach, s_max)])),
+                             0, f.seg_accel.size - 1)
+            nb = max(self._nb_default,
+                     int(math.ceil(float(np.max(f.stop_time_s[lo:hi + 1])) / self.ts)) + 2)
+        self.n_brake = nb
+        self.n = self.st.n_window + nb + self.st.n_hold
+
     def run_piece(self, s_max: float, max_windows: int | None = None):
         """Plan from the current (resting) position to s_max, ending at rest there."""
         nw = self.st.n_window
-        n = self.n
         stall = 0
         windows = 0
         self._prev = None
@@ -427,6 +445,12 @@ class MpcPlanner:
                     self.s_hist[-1] = s_max
                 break
             windows += 1
+            self._size_horizon(s_start, s_max)
+            if self._prev is not None and self._prev.size - nw > self.n:
+                # never cut the previous plan's tail (the fallback, which ends at rest)
+                self.n = self._prev.size - nw
+                self.n_brake = self.n - nw - self.st.n_hold
+            n = self.n
             if max_windows is not None and windows > max_windows:
                 raise RuntimeError("window budget exhausted")
             self.stats["windows"] += 1

@@ -16,6 +16,7 @@ Limits, per segment:
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -81,10 +82,26 @@ def writer_accel(path: Path, profile, fw_limits=None, amax_mm_s2: float | None =
     return acc
 
 
-def plan_trapezoids(path: Path, *, vmax_mm_s: float, axis_vmax_mm_s: dict,
-                    axis_amax_mm_s2: dict, firmware, use_slicer_feed: bool = False,
-                    feed_scale: float = 1.0, fw_limits=None) -> Trapezoids:
-    """Look-ahead trapezoid plan of the whole path (see module docstring).
+@dataclass(frozen=True)
+class PlannerLimits:
+    """What the look-ahead planner must respect on a path of N segments.
+
+    Attributes:
+        vcap_mm_s: (N,) speed cap of each segment, mm/s.
+        accel_mm_s2: (N,) acceleration along each segment, mm/s².
+        junction_mm_s: (N+1,) highest speed at each junction (0 at both ends and at exact
+            stops), before the look-ahead lowers them to what the accelerations allow, mm/s.
+    """
+
+    vcap_mm_s: np.ndarray
+    accel_mm_s2: np.ndarray
+    junction_mm_s: np.ndarray
+
+
+def planner_limits(path: Path, *, vmax_mm_s: float, axis_vmax_mm_s: dict,
+                   axis_amax_mm_s2: dict, firmware, use_slicer_feed: bool = False,
+                   feed_scale: float = 1.0, fw_limits=None) -> PlannerLimits:
+    """Feed caps, per-move accelerations and junction speeds of the path (module docstring).
 
     ``fw_limits`` (vm.firmware.move_limits): the firmware's settings in force at each move
     (M201/M203/M204/M205, SET_VELOCITY_LIMIT found in the file); the plan stays within them
@@ -118,8 +135,20 @@ def plan_trapezoids(path: Path, *, vmax_mm_s: float, axis_vmax_mm_s: dict,
         vj[1:n] = junction_limits(path.junction_cos(), acc, jd[1:],
                                   path.length_mm if centripetal else None, jerk_v, vcap,
                                   path.stop_after, None if centripetal else path.length_mm)
-    vj = forward_backward(vj, path.length_mm, acc)
-    return trapezoids(vj, path.length_mm, acc, vcap, path.dwell_after_s, path.dwell_before_s)
+    return PlannerLimits(vcap_mm_s=vcap, accel_mm_s2=acc, junction_mm_s=vj)
+
+
+def plan_trapezoids(path: Path, *, vmax_mm_s: float, axis_vmax_mm_s: dict,
+                    axis_amax_mm_s2: dict, firmware, use_slicer_feed: bool = False,
+                    feed_scale: float = 1.0, fw_limits=None) -> Trapezoids:
+    """Look-ahead trapezoid plan of the whole path under :func:`planner_limits`."""
+    lim = planner_limits(path, vmax_mm_s=vmax_mm_s, axis_vmax_mm_s=axis_vmax_mm_s,
+                         axis_amax_mm_s2=axis_amax_mm_s2, firmware=firmware,
+                         use_slicer_feed=use_slicer_feed, feed_scale=feed_scale,
+                         fw_limits=fw_limits)
+    vj = forward_backward(lim.junction_mm_s, path.length_mm, lim.accel_mm_s2)
+    return trapezoids(vj, path.length_mm, lim.accel_mm_s2, lim.vcap_mm_s, path.dwell_after_s,
+                      path.dwell_before_s)
 
 
 def effective_limits(profile, vmax_mm_s: float | None = None, amax_mm_s2: float | None = None):
