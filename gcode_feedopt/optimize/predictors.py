@@ -443,18 +443,73 @@ class PlantPredictor:
 
 def _causal(x: np.ndarray, taps: np.ndarray) -> np.ndarray:
     """Σ_lag taps[lag] x[t − lag] (zeros before the start), (K,)."""
-    from scipy.signal import oaconvolve
+    return _causal_many(x, np.asarray(taps, float)[:, None])[:, 0]
 
-    if taps.size == 0:
-        return np.zeros_like(x)
-    return oaconvolve(x, taps)[:x.size] if x.size > 64 else np.convolve(x, taps)[:x.size]
+
+#: overlap-add block of :func:`_causal_many`, samples (FFT of block + taps − 1)
+OLA_BLOCK = 1 << 14
+#: filters this short (or this sparse) are applied as shifted sums instead of FFTs
+SHORT_TAPS = 64
+
+
+def _causal_many(x: np.ndarray, taps: np.ndarray) -> np.ndarray:
+    """Causal convolutions of one signal with several filters at once, (K, m):
+    out[t, j] = Σ_lag taps[lag, j] x[t − lag] (zeros before the start).
+
+    Overlap-add with one real FFT of each block of x shared by all m filters (the twin
+    filters one command by its mean impulse response and by every direction of its
+    covariance factor); short filters are shifted sums over their non-zero taps."""
+    import scipy.fft as sfft
+
+    x = np.asarray(x, float)
+    taps = np.asarray(taps, float)
+    K = x.size
+    n, m = taps.shape
+    if n == 0 or m == 0 or K == 0:
+        return np.zeros((K, m))
+    nz = np.flatnonzero(np.any(taps != 0.0, axis=1))
+    if nz.size == 0:
+        return np.zeros((K, m))
+    if nz.size <= 8 or n <= SHORT_TAPS or K <= n:
+        out = np.zeros((K, m))
+        for lag in nz:
+            if lag < K:
+                out[lag:] += x[:K - lag, None] * taps[lag][None, :]
+        return out
+    B = min(OLA_BLOCK, max(K, 256))
+    nfft = sfft.next_fast_len(B + n - 1, real=True)
+    H = sfft.rfft(taps, nfft, axis=0)                        # (nf, m)
+    nb = -(-K // B)
+    xp = np.zeros(nb * B)
+    xp[:K] = x
+    X = sfft.rfft(xp.reshape(nb, B), nfft, axis=1)           # (nb, nf)
+    Y = sfft.irfft(X[:, :, None] * H[None, :, :], nfft, axis=1)  # (nb, nfft, m)
+    out = np.zeros((nb * B + nfft, m))
+    out[:nb * B] = Y[:, :B].reshape(nb * B, m)
+    tail = Y[:, B:]                                          # spills into the next blocks
+    span = nfft - B
+    for i in range(nb):
+        out[(i + 1) * B:(i + 1) * B + span] += tail[i]
+    return out[:K]
+
+
+def _causal_short(X: np.ndarray, taps: np.ndarray) -> np.ndarray:
+    """Σ_lag taps[lag] X[t − lag] column-wise for a short filter, (K, m) -> (K, m)."""
+    X = np.asarray(X, float)
+    out = np.zeros_like(X)
+    K = X.shape[0]
+    for lag in np.flatnonzero(taps):
+        if lag < K:
+            out[lag:] += taps[lag] * X[:K - lag]
+    return out
 
 
 #: rows of the feature matrix formed at once by ``predict_trajectory`` (memory: rows × d).
 TRAJ_CHUNK = 1 << 16
 
 
-def predict_trajectory(tp: TwinPredictor, cmd: np.ndarray, series: bool = False):
+def predict_trajectory(tp: TwinPredictor, cmd: np.ndarray, series: bool = False,
+                       ref: np.ndarray | None = None):
     """The offline twin over a whole commanded XY trajectory, vectorized.
 
     Equal to committing ``cmd`` to a fresh ``TwinPredictor`` (no measurements, no learning)
@@ -464,6 +519,13 @@ def predict_trajectory(tp: TwinPredictor, cmd: np.ndarray, series: bool = False)
     ``lfilter``), and the variance terms are lag convolutions plus ψᵀΣ_βψ in row chunks.
     A whole Benchy (1.2 M samples per axis) takes seconds.
 
+    ``ref``: (K, 2) per-sample reference the deviations are taken from (default: the first
+    command, as the windowed twin). Several independent windows can be predicted in one call
+    by concatenating them with each window's first command as its reference: the twin is
+    time-invariant and its prior shift-invariant (methods.shift_invariant_cov), so a window
+    predicts its own samples exactly once it holds the twin's memory (n_taps + max(n2, n3)
+    samples) of history; before that the jump between windows is still in the filters.
+
     Returns mean (2, K) absolute mm and std (2, K) mm of the predicted actual position;
     with ``series`` also, per axis, the internal series (w, x̂, var x̂, e, Y) that
     ``TwinPredictor.load_history`` takes."""
@@ -471,7 +533,9 @@ def predict_trajectory(tp: TwinPredictor, cmd: np.ndarray, series: bool = False)
 
     cmd = np.asarray(cmd, float)
     K = cmd.shape[0]
-    ref = cmd[0]
+    ref = cmd[0] if ref is None else np.asarray(ref, float)
+    if ref.ndim == 2 and ref.shape != cmd.shape:
+        raise ValueError(f"ref must be (2,) or {cmd.shape}, got {ref.shape}")
     n2, n3 = tp.n2, tp.n3
     d = tp.d
     mean = np.empty((2, K))
@@ -479,19 +543,20 @@ def predict_trajectory(tp: TwinPredictor, cmd: np.ndarray, series: bool = False)
     out = []
     for a in range(2):
         mu, cov = tp.mu[a], tp.cov[a]
-        w = cmd[:, a] - ref[a]
-        xm = _causal(w, tp.h[a])
+        ref_a = ref[..., a]
+        w = cmd[:, a] - ref_a
         L = tp.L[a]
         r = L.shape[1]
-        Y = np.empty((K, r))
-        for j in range(r):
-            Y[:, j] = _causal(w, L[:, j])
+        # x̂ and the factor series Y (x̂'s uncertainty) in one batched convolution
+        conv = _causal_many(w, np.column_stack([tp.h[a], L]))
+        xm = conv[:, 0]
+        Y = conv[:, 1:]
         xv = np.einsum("ij,ij->i", Y, Y) if r else np.zeros(K)
         wx, we = mu[1:2 + n2], mu[2 + n2:]
         cx = np.zeros(n2 + 1)            # cx[lag] = weight of x̂(t − lag)
         cx[np.arange(n2, -1, -1)] = wx
-        drive = mu[0] + _causal(xm, cx) - xm
-        if n3:
+        drive = mu[0] + _causal_short(xm[:, None], cx)[:, 0] - xm
+        if n3 and np.any(we != 0.0):
             ce = np.zeros(n3 + 1)        # AR: e_t − Σ ce[lag] e_{t−lag} = drive
             ce[np.arange(n3, 0, -1)] = we
             e = lfilter([1.0], np.concatenate([[1.0], -ce[1:]]), drive)
@@ -499,37 +564,42 @@ def predict_trajectory(tp: TwinPredictor, cmd: np.ndarray, series: bool = False)
             e = drive
         m = e + xm
         var = np.full(K, tp.s2)
-        # ψᵀΣ_βψ in chunks of rows
+        # ψᵀΣ_βψ in chunks of rows, over the feature columns that are not identically zero
+        # (offline with the physics prior every self-predicted error e is 0)
+        use_e = bool(n3) and bool(np.any(e != 0.0))
+        dd = d if use_e else 2 + n2
+        cov_u = cov[:dd, :dd]
         xpad = np.concatenate([np.zeros(n2), xm])
-        epad = np.concatenate([np.zeros(n3), e])
+        epad = np.concatenate([np.zeros(n3), e]) if use_e else None
         for lo in range(0, K, TRAJ_CHUNK):
             hi = min(K, lo + TRAJ_CHUNK)
-            P = np.empty((hi - lo, d))
+            P = np.empty((hi - lo, dd))
             P[:, 0] = 1.0
             P[:, 1:2 + n2] = np.lib.stride_tricks.sliding_window_view(
                 xpad[lo:hi + n2], n2 + 1)
-            if n3:
+            if use_e:
                 P[:, 2 + n2:] = np.lib.stride_tricks.sliding_window_view(
                     epad[lo:hi + n3 - 1], n3)
-            var[lo:hi] += np.einsum("ij,ij->i", P @ cov, P)
+            var[lo:hi] += np.einsum("ij,ij->i", P @ cov_u, P)
         if tp.use_var and r:
             ml = tp.maxlag
             c = np.zeros(ml + 1)
             np.add.at(c, np.arange(n2, -1, -1), wx)
             np.add.at(c, np.arange(n3, 0, -1), -we)
-            quad = np.zeros(K)
-            for j in range(r):
-                q = _causal(Y[:, j], c)
-                quad += q * q
+            q = _causal_short(Y, c) if np.count_nonzero(c) <= SHORT_TAPS else \
+                lfilter(c, [1.0], Y, axis=0)
+            quad = np.einsum("ij,ij->i", q, q)
             dg = np.diag(cov)
             vx = np.zeros(n2 + 1)
             vx[np.arange(n2, -1, -1)] = dg[1:2 + n2]
-            var += quad + _causal(xv, vx)
+            taps = vx
             if n3:
                 ve = np.zeros(n3 + 1)
                 ve[np.arange(n3, 0, -1)] = dg[2 + n2:]
-                var += _causal(xv, ve)
-        mean[a] = m + ref[a]
+                taps = np.concatenate([vx, np.zeros(max(0, ve.size - vx.size))])
+                taps[:ve.size] += ve
+            var += quad + lfilter(taps, [1.0], xv)
+        mean[a] = m + ref_a
         std[a] = np.sqrt(np.maximum(var, 0.0))
         if series:
             out.append((w, xm, xv, e, Y))
