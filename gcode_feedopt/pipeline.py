@@ -169,8 +169,11 @@ def optimize_file(in_path, out_path, profile, opts: Options) -> Report:
         stage_wall_s={k: round(v, 4) for k, v in wall.items()},
         extra={"input_time_same_limits_s": t_in,
                **({"executed": executed} if executed is not None else {}),
-               **{k: info[k] for k in ("window_status", "fallback_windows", "relaxed_windows",
-                                        "compute_s", "solver_s") if k in info}})
+               **{k: info[k] for k in ("optimizer", "window_status", "fallback_windows",
+                                        "relaxed_windows", "relaxed_samples", "rounds",
+                                        "whole_file_checks", "samples_evaluated",
+                                        "slowed_length_fraction", "compute_s", "solver_s")
+                  if k in info}})
     if fw_out > fw_in:
         rep.notes.append("the firmware runs the original faster than our output: the slicer's "
                          "feeds exceed the profile's limits somewhere (see --vmax)")

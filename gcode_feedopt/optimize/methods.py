@@ -35,6 +35,10 @@ from .mpc import MpcPlanner, MpcResult, MpcSettings
 from .predictors import PlantPredictor, TwinPredictor
 
 METHODS = ("kinematic", "conservative", "pb", "dd", "pidd", "oracle")
+#: how a twin-driven method finds its plan: ``slowdown`` (whole-file passes, the offline
+#: default) or ``window`` (the receding-window LP of the paper, the full method, and the one
+#: that learns online)
+OPTIMIZERS = ("slowdown", "window")
 TWIN_METHODS = ("pb", "dd", "pidd")
 #: Bisection steps of the conservative scale factor (2⁻¹⁰ of the range).
 CONSERVATIVE_STEPS = 10
@@ -197,6 +201,61 @@ def _trapezoid_samples(s_a, s_b, vmax, amax, ts):
     return s_a + np.maximum.accumulate(s)
 
 
+def check_noise_floor(predictor, profile, tolerance_mm: float, stringency: float) -> None:
+    """Refuse a tolerance below what the twin can promise at rest: noise and bias alone (the
+    contour error of a machine standing still); below it every sample would be given up."""
+    z = float(norm.ppf(stringency))
+    floor = z * max(math.sqrt(predictor.s2 + float(c[0, 0])) for c in predictor.cov)
+    if tolerance_mm <= 1.05 * floor:
+        raise FeedOptError(
+            f"tolerance {tolerance_mm:g} mm is below what the twin can promise at stringency "
+            f"{stringency:g}: {floor:.3f} mm even at rest (sensor noise σ_ε and bias of "
+            f"{profile.name}); use --tolerance above {1.2 * floor:.3f} or a lower --stringency")
+
+
+def plan_offline(path, profile, method: str, *, tolerance_mm: float, stringency: float,
+                 vmax_mm_s=None, amax_mm_s2=None, plant=None, fw_limits=None,
+                 settings=None) -> Schedule:
+    """Offline plan of a whole file for pb | pidd | oracle: the firmware's own plan slowed
+    down locally until the twin (or, for the oracle, the plant) keeps the chance bound on
+    every sample (optimize.slowdown; the window LP of mpc.py is the full method it is tested
+    against)."""
+    from ..plan.kinematic import planner_limits
+    from .free import ContourRules
+    from .mpc import OVERSHOOT_LAG_S
+    from .slowdown import PlantEvaluator, TwinEvaluator, plan_slowdown
+
+    if method == "dd":
+        raise FeedOptError("method dd learns from data only (zero prior) and has no data offline; "
+                           "use --method pidd, or run dd online on the virtual machine with "
+                           "`gcode-feedopt compare`")
+    vmax, axis_v, axis_a = effective_limits(profile, vmax_mm_s, amax_mm_s2)
+    limits = planner_limits(path, vmax_mm_s=vmax, axis_vmax_mm_s=axis_v,
+                            axis_amax_mm_s2=axis_a, firmware=profile.firmware,
+                            fw_limits=fw_limits)
+    z = float(norm.ppf(stringency))
+    kw = dict(z=z, tol_mm=tolerance_mm, overshoot_reach_mm=max(1.0, OVERSHOOT_LAG_S * vmax))
+    rules = ContourRules(path)
+    if method == "oracle":
+        evaluator = PlantEvaluator(plant, rules, **kw)
+    else:
+        predictor = make_twin_predictor(profile, method, learn=False)
+        check_noise_floor(predictor, profile, tolerance_mm, stringency)
+        evaluator = TwinEvaluator(predictor, rules, **kw)
+    res = plan_slowdown(path, limits, evaluator, ts_s=profile.ts_s, settings=settings)
+    on = res.bound_mm > 0
+    info = dict(res.info)
+    info.update({
+        "plan_time_s": (res.s_mm.size - 1) * profile.ts_s, "stringency": stringency,
+        "tolerance_mm": tolerance_mm, "z": z, "online": False,
+        "predicted_max_contour_error_mm": float(np.max(res.bound_mm)) if on.any() else 0.0,
+        "predicted_p95_contour_error_mm":
+            float(np.quantile(res.motion_mm[on], 0.95)) if on.any() else 0.0,
+        "predicted_bound_mm": res.bound_mm, "_predicted_xy_mm": res.mean_xy_mm,
+        "vmax_mm_s": vmax, "amax_mm_s2": min(axis_a["x"], axis_a["y"])})
+    return Schedule(ts_s=profile.ts_s, s_mm=res.s_mm, method=method, info=info)
+
+
 def plan_mpc(path, profile, predictor, *, method, tolerance_mm, stringency, vmax_mm_s=None,
              amax_mm_s2=None, settings: MpcSettings | None = None, plant=None,
              online: bool = False, fw_limits=None, free: bool = True, screen: bool = True,
@@ -214,14 +273,7 @@ def plan_mpc(path, profile, predictor, *, method, tolerance_mm, stringency, vmax
                            "use --method pidd, or run dd online on the virtual machine with "
                            "`gcode-feedopt compare`")
     if hasattr(predictor, "s2") and not learning:
-        # what the twin can promise at rest: noise and bias alone (the contour error of a
-        # machine standing still); below it every window would be "relaxed"
-        floor = z * max(math.sqrt(predictor.s2 + float(c[0, 0])) for c in predictor.cov)
-        if tolerance_mm <= 1.05 * floor:
-            raise FeedOptError(
-                f"tolerance {tolerance_mm:g} mm is below what the twin can promise at stringency "
-                f"{stringency:g}: {floor:.3f} mm even at rest (sensor noise σ_ε and bias of "
-                f"{profile.name}); use --tolerance above {1.2 * floor:.3f} or a lower --stringency")
+        check_noise_floor(predictor, profile, tolerance_mm, stringency)
 
     def on_commit(k0, cmd):
         if not (online and plant is not None):
@@ -330,7 +382,10 @@ def plan_schedule(method: str, path, profile, *, tolerance_mm: float, stringency
         plant: vm.plant.Plant the method is tuned on (conservative), knows (oracle) or runs
             on (online). Default: the profile's nominal plant (the FRF set's mean response).
         online: learn from the plant's measurements window by window (pb never learns).
-        settings: MpcSettings (window length, horizon, solver, ...).
+        settings: MpcSettings (window length, horizon, solver, ...) of the window optimizer.
+        opts: ``optimizer`` (``slowdown`` offline by default, ``window`` online and on
+            request), ``seed`` (the default plant), and the window optimizer's ``free``,
+            ``screen``, ``workers``.
     """
     if method not in METHODS:
         raise FeedOptError(f"unknown method {method!r}; use one of {', '.join(METHODS)}")
@@ -338,9 +393,15 @@ def plan_schedule(method: str, path, profile, *, tolerance_mm: float, stringency
         raise FeedOptError(f"stringency {stringency} is outside [0.5, 1); pass e.g. 0.95")
     if not tolerance_mm > 0:
         raise FeedOptError(f"tolerance {tolerance_mm} mm must be positive; pass e.g. 0.1")
-    unknown = set(opts) - {"seed", "free", "screen", "workers"}
+    unknown = set(opts) - {"seed", "free", "screen", "workers", "optimizer"}
     if unknown:
         raise FeedOptError(f"unknown option(s) {sorted(unknown)} for plan_schedule")
+    optimizer = opts.get("optimizer") or ("window" if online else "slowdown")
+    if optimizer not in OPTIMIZERS:
+        raise FeedOptError(f"unknown optimizer {optimizer!r}; use one of {', '.join(OPTIMIZERS)}")
+    if optimizer == "slowdown" and online:
+        raise FeedOptError("the slow-down optimizer plans offline; online learning on the "
+                           "virtual machine needs the window optimizer")
     if method == "kinematic":
         return plan_kinematic(path, profile, vmax_mm_s=vmax_mm_s, amax_mm_s2=amax_mm_s2,
                               fw_limits=fw_limits)
@@ -352,6 +413,10 @@ def plan_schedule(method: str, path, profile, *, tolerance_mm: float, stringency
         return plan_conservative(path, profile, tolerance_mm=tolerance_mm, stringency=stringency,
                                  plant=plant, vmax_mm_s=vmax_mm_s, amax_mm_s2=amax_mm_s2,
                                  fw_limits=fw_limits)
+    if optimizer == "slowdown":
+        return plan_offline(path, profile, method, tolerance_mm=tolerance_mm,
+                            stringency=stringency, vmax_mm_s=vmax_mm_s, amax_mm_s2=amax_mm_s2,
+                            plant=plant, fw_limits=fw_limits)
     if method == "oracle":
         predictor = PlantPredictor(plant)
     else:

@@ -443,22 +443,24 @@ class PlantPredictor:
 
 def _causal(x: np.ndarray, taps: np.ndarray) -> np.ndarray:
     """Σ_lag taps[lag] x[t − lag] (zeros before the start), (K,)."""
-    return _causal_many(x, np.asarray(taps, float)[:, None])[:, 0]
+    return _causal_many(x, np.asarray(taps, float)[:, None])[0]
 
 
-#: overlap-add block of :func:`_causal_many`, samples (FFT of block + taps − 1)
-OLA_BLOCK = 1 << 14
-#: filters this short (or this sparse) are applied as shifted sums instead of FFTs
+#: overlap-add block of :func:`_causal_many`, samples (FFT of block + taps − 1), and blocks
+#: transformed at once (temporaries of a few MB stay in cache)
+OLA_BLOCK = 1 << 13
+OLA_CHUNK = 8
+#: filters this short (or with this few non-zero taps) are applied as shifted sums
 SHORT_TAPS = 64
 
 
 def _causal_many(x: np.ndarray, taps: np.ndarray) -> np.ndarray:
-    """Causal convolutions of one signal with several filters at once, (K, m):
-    out[t, j] = Σ_lag taps[lag, j] x[t − lag] (zeros before the start).
+    """Causal convolutions of one signal with several filters at once, (m, K):
+    out[j, t] = Σ_lag taps[lag, j] x[t − lag] (zeros before the start).
 
     Overlap-add with one real FFT of each block of x shared by all m filters (the twin
     filters one command by its mean impulse response and by every direction of its
-    covariance factor); short filters are shifted sums over their non-zero taps."""
+    covariance factor); short or sparse filters are shifted sums over their non-zero taps."""
     import scipy.fft as sfft
 
     x = np.asarray(x, float)
@@ -466,41 +468,46 @@ def _causal_many(x: np.ndarray, taps: np.ndarray) -> np.ndarray:
     K = x.size
     n, m = taps.shape
     if n == 0 or m == 0 or K == 0:
-        return np.zeros((K, m))
+        return np.zeros((m, K))
     nz = np.flatnonzero(np.any(taps != 0.0, axis=1))
     if nz.size == 0:
-        return np.zeros((K, m))
+        return np.zeros((m, K))
     if nz.size <= 8 or n <= SHORT_TAPS or K <= n:
-        out = np.zeros((K, m))
-        for lag in nz:
-            if lag < K:
-                out[lag:] += x[:K - lag, None] * taps[lag][None, :]
-        return out
+        return _causal_short(np.broadcast_to(x, (m, K)), taps.T)
     B = min(OLA_BLOCK, max(K, 256))
     nfft = sfft.next_fast_len(B + n - 1, real=True)
-    H = sfft.rfft(taps, nfft, axis=0)                        # (nf, m)
+    H = sfft.rfft(taps.T, nfft, axis=1)                      # (m, nf)
     nb = -(-K // B)
     xp = np.zeros(nb * B)
     xp[:K] = x
-    X = sfft.rfft(xp.reshape(nb, B), nfft, axis=1)           # (nb, nf)
-    Y = sfft.irfft(X[:, :, None] * H[None, :, :], nfft, axis=1)  # (nb, nfft, m)
-    out = np.zeros((nb * B + nfft, m))
-    out[:nb * B] = Y[:, :B].reshape(nb * B, m)
-    tail = Y[:, B:]                                          # spills into the next blocks
-    span = nfft - B
-    for i in range(nb):
-        out[(i + 1) * B:(i + 1) * B + span] += tail[i]
-    return out[:K]
+    xb = xp.reshape(nb, B)
+    out = np.zeros((m, nb * B + nfft))
+    for c0 in range(0, nb, OLA_CHUNK):
+        c1 = min(nb, c0 + OLA_CHUNK)
+        X = sfft.rfft(xb[c0:c1], nfft, axis=1)               # (c, nf)
+        Y = sfft.irfft(X[:, None, :] * H[None, :, :], nfft, axis=-1)  # (c, m, nfft)
+        for i in range(c1 - c0):
+            lo = (c0 + i) * B
+            out[:, lo:lo + nfft] += Y[i]
+    return out[:, :K]
 
 
 def _causal_short(X: np.ndarray, taps: np.ndarray) -> np.ndarray:
-    """Σ_lag taps[lag] X[t − lag] column-wise for a short filter, (K, m) -> (K, m)."""
+    """Row-wise Σ_lag taps[.., lag] X[.., t − lag] for short filters: X (m, K); taps (L,)
+    shared by every row, or (m, L) one per row. Returns (m, K)."""
     X = np.asarray(X, float)
-    out = np.zeros_like(X)
-    K = X.shape[0]
-    for lag in np.flatnonzero(taps):
+    taps = np.asarray(taps, float)
+    K = X.shape[-1]
+    per_row = taps.ndim == 2
+    lags = np.flatnonzero(np.any(taps != 0.0, axis=0) if per_row else taps != 0.0)
+    if lags.size == 1 and lags[0] == 0:
+        # one tap at lag 0 (the physics prior's weight 1 on the current x̂): a scaling
+        return X * (taps[:, :1] if per_row else taps[0])
+    out = np.zeros(X.shape)
+    for lag in lags:
         if lag < K:
-            out[lag:] += taps[lag] * X[:K - lag]
+            w = taps[:, lag][:, None] if per_row else taps[lag]
+            out[..., lag:] += w * X[..., :K - lag]
     return out
 
 
@@ -549,13 +556,13 @@ def predict_trajectory(tp: TwinPredictor, cmd: np.ndarray, series: bool = False,
         r = L.shape[1]
         # x̂ and the factor series Y (x̂'s uncertainty) in one batched convolution
         conv = _causal_many(w, np.column_stack([tp.h[a], L]))
-        xm = conv[:, 0]
-        Y = conv[:, 1:]
-        xv = np.einsum("ij,ij->i", Y, Y) if r else np.zeros(K)
+        xm = conv[0]
+        Y = conv[1:]                      # (r, K)
+        xv = np.einsum("ij,ij->j", Y, Y) if r else np.zeros(K)
         wx, we = mu[1:2 + n2], mu[2 + n2:]
         cx = np.zeros(n2 + 1)            # cx[lag] = weight of x̂(t − lag)
         cx[np.arange(n2, -1, -1)] = wx
-        drive = mu[0] + _causal_short(xm[:, None], cx)[:, 0] - xm
+        drive = mu[0] + _causal_short(xm[None, :], cx)[0] - xm
         if n3 and np.any(we != 0.0):
             ce = np.zeros(n3 + 1)        # AR: e_t − Σ ce[lag] e_{t−lag} = drive
             ce[np.arange(n3, 0, -1)] = we
@@ -587,8 +594,8 @@ def predict_trajectory(tp: TwinPredictor, cmd: np.ndarray, series: bool = False,
             np.add.at(c, np.arange(n2, -1, -1), wx)
             np.add.at(c, np.arange(n3, 0, -1), -we)
             q = _causal_short(Y, c) if np.count_nonzero(c) <= SHORT_TAPS else \
-                lfilter(c, [1.0], Y, axis=0)
-            quad = np.einsum("ij,ij->i", q, q)
+                lfilter(c, [1.0], Y, axis=1)
+            quad = np.einsum("ij,ij->j", q, q)
             dg = np.diag(cov)
             vx = np.zeros(n2 + 1)
             vx[np.arange(n2, -1, -1)] = dg[1:2 + n2]
@@ -602,7 +609,7 @@ def predict_trajectory(tp: TwinPredictor, cmd: np.ndarray, series: bool = False,
         mean[a] = m + ref_a
         std[a] = np.sqrt(np.maximum(var, 0.0))
         if series:
-            out.append((w, xm, xv, e, Y))
+            out.append((w, xm, xv, e, Y.T))
     if series:
         return mean, std, out
     return mean, std

@@ -137,14 +137,17 @@ def test_pidd_online_on_the_virtual_machine_keeps_tolerance_and_beats_conservati
     assert pidd.info["relaxed_windows"] <= 0.02 * pidd.info["windows"]
 
 
-def test_higher_stringency_is_slower(ender, butterfly_piece):
+@pytest.mark.parametrize("optimizer", ["slowdown", "window"])
+def test_higher_stringency_is_slower(ender, butterfly_piece, optimizer):
     _, path = butterfly_piece
-    times = [plan_schedule("pidd", path, ender, tolerance_mm=0.04, stringency=eta).duration_s
-             for eta in (0.6, 0.99)]
+    times = [plan_schedule("pidd", path, ender, tolerance_mm=0.04, stringency=eta,
+                           optimizer=optimizer).duration_s for eta in (0.6, 0.99)]
     assert times[1] > times[0]
 
 
-def test_schedule_is_monotone_and_stays_within_the_firmware_plan(ender, butterfly_piece):
+@pytest.mark.parametrize("optimizer", ["slowdown", "window"])
+def test_schedule_is_monotone_and_stays_within_the_firmware_plan(ender, butterfly_piece,
+                                                                  optimizer):
     """Firmware-consistent constraints (optimize/free.py): never faster than the kinematic
     plan F at the same path position (its orbit cap carries the feed and junction limits),
     tangential acceleration within the per-move limit of the segments touched."""
@@ -152,7 +155,7 @@ def test_schedule_is_monotone_and_stays_within_the_firmware_plan(ender, butterfl
     from gcode_feedopt.plan.kinematic import plan_kinematic
 
     _, path = butterfly_piece
-    s = plan_schedule("pb", path, ender, tolerance_mm=0.1, stringency=0.95)
+    s = plan_schedule("pb", path, ender, tolerance_mm=0.1, stringency=0.95, optimizer=optimizer)
     assert s.s_mm[0] == 0.0 and abs(s.s_mm[-1] - path.s0_mm[-1]) < 1e-6
     assert np.all(np.diff(s.s_mm) >= -1e-12)
     fp = FreePlan(path, plan_kinematic(path, ender))
@@ -173,10 +176,12 @@ def _moving_per_piece(path, s_mm):
                      for a, b in zip(ends[:-1], ends[1:])])
 
 
-def test_twin_plan_is_the_kinematic_plan_where_the_tolerance_is_slack(ender):
+@pytest.mark.parametrize("optimizer", ["slowdown", "window"])
+def test_twin_plan_is_the_kinematic_plan_where_the_tolerance_is_slack(ender, optimizer):
     """With a tolerance nothing reaches, pidd's plan is the firmware's own (F): every piece
-    between exact stops moves for exactly as many samples and the positions agree to µm;
-    only a dwell may round to one sample differently (the plan holds whole samples)."""
+    between exact stops moves for as many samples (the window optimizer exactly; the slow-down
+    optimizer, which starts every piece on a sample, within one) and the positions agree to
+    µm; only a dwell may round to one sample differently (the plan holds whole samples)."""
     from gcode_feedopt import pipeline
     from gcode_feedopt.plan.kinematic import plan_kinematic
     from gcode_feedopt.vm import firmware
@@ -191,10 +196,19 @@ def test_twin_plan_is_the_kinematic_plan_where_the_tolerance_is_slack(ender):
     path = pipeline.path_for(prog, ender)
     fw = firmware.move_limits(prog, ender)
     kin = plan_kinematic(path, ender, fw_limits=fw)
-    sch = plan_schedule("pidd", path, ender, tolerance_mm=5.0, stringency=0.95, fw_limits=fw)
-    assert sch.info["window_status"].get("free", 0) >= 0.9 * sch.info["windows"]
-    np.testing.assert_array_equal(_moving_per_piece(path, sch.s_mm),
-                                  _moving_per_piece(path, kin.s_mm))
+    sch = plan_schedule("pidd", path, ender, tolerance_mm=5.0, stringency=0.95, fw_limits=fw,
+                        optimizer=optimizer)
+    if optimizer == "window":
+        assert sch.info["window_status"].get("free", 0) >= 0.9 * sch.info["windows"]
+    else:
+        assert sch.info["slowed_length_fraction"] == 0.0 and sch.info["rounds"] == 0
+    moving, moving_kin = _moving_per_piece(path, sch.s_mm), _moving_per_piece(path, kin.s_mm)
+    if optimizer == "window":
+        np.testing.assert_array_equal(moving, moving_kin)
+    else:
+        # every piece starts on a sample at rest (F's own clock may fall between two): the
+        # same continuous motion (test_slowdown: to 1e-9 mm), one sample more or less
+        assert np.max(np.abs(moving - moving_kin)) <= 1
     n_stops = int(np.sum(path.stop_after)) + 1
     assert abs(sch.s_mm.size - kin.s_mm.size) <= n_stops
     # first piece (before any dwell) sample for sample
@@ -223,8 +237,8 @@ def test_screened_plan_equals_the_full_method(ender):
     path = pipeline.path_for(prog, ender)
     fw = firmware.move_limits(prog, ender)
     kw = dict(tolerance_mm=0.1, stringency=0.95, fw_limits=fw)
-    fast = plan_schedule("pidd", path, ender, screen=True, **kw)
-    full = plan_schedule("pidd", path, ender, screen=False, **kw)
+    fast = plan_schedule("pidd", path, ender, optimizer="window", screen=True, **kw)
+    full = plan_schedule("pidd", path, ender, optimizer="window", screen=False, **kw)
     assert fast.info["window_status"].get("free", 0) > 0
     assert "free" not in full.info["window_status"]
     assert abs(fast.duration_s - full.duration_s) <= 0.01 * full.duration_s
@@ -277,12 +291,15 @@ def test_compare_cli_prints_table_and_writes_json_and_png(tmp_path, butterfly_pi
     assert bad.returncode == 2 and "unknown fast" in bad.stderr
 
 
-def test_tolerance_below_the_twin_noise_floor_is_refused_with_the_fix(ender, butterfly_piece):
+@pytest.mark.parametrize("optimizer", ["slowdown", "window"])
+def test_tolerance_below_the_twin_noise_floor_is_refused_with_the_fix(ender, butterfly_piece,
+                                                                       optimizer):
     from gcode_feedopt.errors import FeedOptError
 
     _, path = butterfly_piece
     with pytest.raises(FeedOptError, match="--tolerance above"):
-        plan_schedule("pidd", path, ender, tolerance_mm=0.01, stringency=0.95)
+        plan_schedule("pidd", path, ender, tolerance_mm=0.01, stringency=0.95,
+                      optimizer=optimizer)
 
 
 def test_parallel_chunks_give_the_sequential_plan(ender, monkeypatch):
@@ -303,8 +320,8 @@ def test_parallel_chunks_give_the_sequential_plan(ender, monkeypatch):
     path = pipeline.path_for(prog, ender)
     fw = firmware.move_limits(prog, ender)
     kw = dict(tolerance_mm=0.1, stringency=0.95, fw_limits=fw)
-    seq = plan_schedule("pidd", path, ender, workers=1, **kw)
-    par = plan_schedule("pidd", path, ender, workers=2, **kw)
+    seq = plan_schedule("pidd", path, ender, optimizer="window", workers=1, **kw)
+    par = plan_schedule("pidd", path, ender, optimizer="window", workers=2, **kw)
     assert par.info["parallel_chunks"] >= 2
     assert par.s_mm.size == seq.s_mm.size
     np.testing.assert_allclose(par.s_mm, seq.s_mm, atol=1e-6)
