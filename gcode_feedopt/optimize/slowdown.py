@@ -44,9 +44,9 @@ each starting from F's history (the twin is time-invariant: only its memory befo
 matters); the parent takes the groups' plans as they are, predicts again the samples right
 after each group boundary (which remember the other group's plan, not F), and settles there.
 
-Samples the twin predicts over the tolerance even with their whole cause window at the
-``scale_min`` floor (an un-learned disturbance larger than the tolerance, a tolerance at the
-twin's noise floor) are given up on, counted in ``info["relaxed_samples"]``, and their cells
+Samples predicted over the tolerance even at rest (the oracle's plant carries a disturbance
+larger than the tolerance leaves room for), or even with their whole cause window at the
+``scale_min`` floor, are given up on, counted in ``info["relaxed_samples"]``, and their cells
 return to full speed (slowing them down does not help).
 
 The plan stays within F everywhere (every limit is F's limit times r ≤ 1), so the firmware
@@ -295,6 +295,12 @@ class TwinEvaluator:
         return motion + unc, motion, unc
 
 
+    def rest_error(self, geo: dict, idx: np.ndarray) -> np.ndarray:
+        """(K,) the contour error of samples that no speed change removes, mm: none for the
+        offline twin (a machine at rest is predicted exactly where it is commanded)."""
+        return np.zeros(geo["on"].size)
+
+
 class PlantEvaluator(TwinEvaluator):
     """The oracle's bound: the virtual machine's own plant, known exactly (zero std). Its
     effects may depend on absolute time or on the whole history, so it is always evaluated
@@ -317,9 +323,22 @@ class PlantEvaluator(TwinEvaluator):
                             mode_hz=self.plant.mode_hz).actual_mm
         return out[:, :2].T, np.zeros((2, cmd_xy.shape[0]))
 
+    def rest_error(self, geo: dict, idx: np.ndarray) -> np.ndarray:
+        """(K,) what the plant's effects add at sample ``idx`` of a machine standing still,
+        across the path (|n·d|), on constrained samples, mm: a time-periodic disturbance
+        stays whatever the speed."""
+        from ..vm.plant import simulate_axes
+
+        K = int(idx.max()) + 1 if idx.size else 0
+        still = np.zeros((K, 3))
+        d = simulate_axes(still, self.plant.ts_s, self.plant.impulse, self.effects,
+                          mode_hz=self.plant.mode_hz).actual_mm[:, :2]
+        nrm = geo["nrm"]
+        return np.where(geo["on"], np.abs(nrm[:, 0] * d[idx, 0] + nrm[:, 1] * d[idx, 1]), 0.0)
+
 
 _GEO_ROWS = ("cmd", "nrm", "on")
-_FIELDS = ("b", "mot", "unc")
+_FIELDS = ("b", "mot", "unc", "rest")
 
 
 class _State:
@@ -580,7 +599,7 @@ class _State:
         else:
             ref = geo["cmd"][np.concatenate([[0], np.cumsum(w_hi - w_lo)[:-1]])][owner]
         mu, sd = self.ev.predict(geo["cmd"], ref)
-        vals = self.ev.bound(geo, mu, sd)
+        vals = self.ev.bound(geo, mu, sd) + (self.ev.rest_error(geo, idx),)
         fill = bad[idx]
         tgt = idx[fill]
         for f, v in zip(_FIELDS, vals):
@@ -638,22 +657,29 @@ def _optimize(state: _State, st: SlowdownSettings, relaxed: np.ndarray, *, grow:
             late = max(0, rnd - st.escalate_after + 1)
             widen = 2.0 ** min((late + 1) // 2, 3)
             cap = max(hi_f - 0.05 * late, 0.8) if late else hi_f
-            room = np.maximum(st.aim * tol - out["unc"][viol], 0.0)
-            f = np.clip((room / np.maximum(out["mot"][viol], 1e-12)) ** st.exponent, lo_f, cap)
+            # the part of the error that no speed changes (a disturbance at rest: the plant's,
+            # for the oracle; 0 for the twin, whose offline error vanishes at rest)
+            rest = out["rest"][viol]
+            room = st.aim * tol - out["unc"][viol] - rest
+            f = np.clip((np.maximum(room, 0.0) / np.maximum(out["mot"][viol] - rest, 1e-12))
+                        ** st.exponent, lo_f, cap)
             owner, cells = cause(starts, viol, widen)
             fac = np.ones(grid.n_cells)
             np.minimum.at(fac, cells, f[owner])
             fac[grid.fixed | relaxed] = 1.0
             scale = state.scale
-            floor = scale <= st.scale_min * (1 + 1e-9)
-            # a violation whose whole cause window is at the floor is not motion-induced:
-            # give up on it, and give its cells their speed back
+            # a violation that standing still would not cure, or whose whole cause window is
+            # at the floor, is not the motion's: give up on it and give its cells their speed
+            # back
+            hopeless_v = room <= 0.0
             at_floor = np.ones(viol.size, bool)
-            np.logical_and.at(at_floor, owner, floor[cells] | grid.fixed[cells])
+            np.logical_and.at(at_floor, owner, (scale <= st.scale_min * (1 + 1e-9))[cells]
+                              | grid.fixed[cells])
+            hopeless_v |= at_floor
             new = np.maximum(scale * fac, st.scale_min)
-            if at_floor.any():
+            if hopeless_v.any():
                 hopeless = np.zeros(grid.n_cells, bool)
-                hopeless[cells[at_floor[owner]]] = True
+                hopeless[cells[hopeless_v[owner]]] = True
                 relaxed[hopeless] = True
                 new = np.where(hopeless, 1.0, new)
             if np.array_equal(new, scale):
