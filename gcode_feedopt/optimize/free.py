@@ -245,11 +245,14 @@ class FreePlan(ContourRules):
             s, ds = float(s_prev), float(ds_prev)
             for k in range(n_go):
                 cap = float(self.step_cap(np.array([s]))[0])
-                a = float(self.accel(np.array([s - ds]), np.array([s + cap]))[0])
+                # off the orbit: safe whichever segment the sample lands in (as the LP)
+                a = float(self.accel(np.array([s - ds]), np.array([s + cap]), smallest=True)[0])
                 new = min(cap, ds + a * ts2, s_max - s)
                 # never brake harder than the acceleration allows (above F after an LP
-                # window, the cap may fall faster than we can slow down: verification decides)
-                new = max(new, min(ds - self.accel_min(s - ds, s + ds) * ts2, s_max - s), 0.0)
+                # window, the cap may fall faster than we can slow down: verification decides);
+                # the braking is on the segments being left, as F's own (the largest touched)
+                a_brk = float(self.accel(np.array([s - ds]), np.array([s + ds]))[0])
+                new = max(new, min(ds - a_brk * ts2, s_max - s), 0.0)
                 s, ds = s + new, new
                 go[k] = s
         out = np.empty(n_total)
