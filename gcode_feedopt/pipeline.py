@@ -24,7 +24,7 @@ METHODS = ("kinematic", "conservative", "pb", "dd", "pidd", "oracle")
 
 @dataclass
 class Options:
-    method: str = "kinematic"
+    method: str = "pidd"
     tolerance_mm: float | None = None
     stringency: float | None = None
     vmax_mm_s: float | None = None
@@ -67,7 +67,7 @@ def plan(path, profile, opts: Options, fw_limits=None):
                          tolerance_mm=opts.tolerance_mm or profile.limits.tolerance_mm,
                          stringency=opts.stringency or profile.limits.stringency,
                          vmax_mm_s=opts.vmax_mm_s, amax_mm_s2=opts.amax_mm_s2,
-                         fw_limits=fw_limits)
+                         fw_limits=fw_limits, use_slicer_feed=opts.use_slicer_feed)
 
 
 def input_time_s(path, profile, opts: Options, fw_limits=None) -> float:

@@ -36,7 +36,9 @@ def test_report_has_the_promised_keys_and_output_is_not_slower(src, tmp_path):
     for key in ("input_time_s", "output_time_s", "moves", "method", "tolerance_mm", "stringency",
                 "moves_changed", "lines_written", "time_source"):
         assert key in d, key
-    assert d["method"] == "kinematic"
+    assert d["method"] == "pidd"  # the default: the digital twin keeps the tolerance
+    assert d["predicted_max_contour_error_mm"] <= d["tolerance_mm"] + 1e-9
+    assert d["extra"]["optimizer"] == "slowdown"
     assert d["moves"] > 1000
     assert d["output_time_s"] <= d["input_time_s"] * 1.001
     assert src.read_bytes() == SAMPLE.read_bytes()

@@ -18,7 +18,8 @@ from ..pipeline import METHODS
 @click.option("-j", "--jobs", type=click.IntRange(1, 256), default=os.cpu_count() or 1,
               show_default=True, help="Parallel processes.")
 @click.option("--machine", "-m", required=True, help="Built-in profile or profile .yaml.")
-@click.option("--method", type=click.Choice(METHODS), default="kinematic", show_default=True)
+@click.option("--method", type=click.Choice(METHODS), default="pidd", show_default=True,
+              help="As for optimize (pidd: the digital twin keeps the tolerance).")
 @click.option("--vmax", type=float, help="Override the feed limit, mm/s.")
 @click.option("--amax", type=float, help="Override the X/Y acceleration limit, mm/s².")
 @click.option("--use-slicer-feed", is_flag=True, help="Never faster than the slicer's F.")

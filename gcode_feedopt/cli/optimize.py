@@ -18,8 +18,11 @@ from ..profile import load_profile
               help="Write here; without it the input is edited in place (PrusaSlicer's contract).")
 @click.option("--machine", "-m", required=True,
               help="Built-in profile (ender3pro, nomad3) or a profile .yaml path.")
-@click.option("--method", type=click.Choice(METHODS), default="kinematic", show_default=True,
-              help="Planner: kinematic limits only, or a twin-driven method.")
+@click.option("--method", type=click.Choice(METHODS), default="pidd", show_default=True,
+              help="pidd: the digital twin keeps the contour error within the tolerance; "
+                   "kinematic: the firmware's limits only (fastest, no error model); "
+                   "pb: the twin's physics alone; conservative: uniform limits lowered until "
+                   "the profile's nominal machine holds the tolerance.")
 @click.option("--tolerance", type=click.FloatRange(min=0, min_open=True), metavar="MM",
               help="Contour-error tolerance E_max, mm (default: the profile's).")
 @click.option("--stringency", type=click.FloatRange(0.5, 0.9999), metavar="P",

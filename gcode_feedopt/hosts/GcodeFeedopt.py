@@ -34,7 +34,7 @@ class GcodeFeedopt(Script):
                 "machine": {"label": "Machine profile", "description": "Built-in profile name (ender3pro, nomad3) or the path of a profile .yaml", "type": "str", "default_value": "ender3pro"},
                 "tolerance": {"label": "Tolerance", "description": "Contour-error tolerance E_max", "unit": "mm", "type": "float", "default_value": 0.1, "minimum_value": "0.001"},
                 "stringency": {"label": "Stringency", "description": "Fraction of samples that must stay within the tolerance", "type": "float", "default_value": 0.95, "minimum_value": "0.5", "maximum_value": "0.9999"},
-                "method": {"label": "Method", "description": "Planner", "type": "enum", "options": {"kinematic": "Kinematic limits", "pidd": "Digital twin (PIDD)", "conservative": "Conservative", "pb": "Physics only", "dd": "Data only"}, "default_value": "kinematic"},
+                "method": {"label": "Method", "description": "Planner", "type": "enum", "options": {"pidd": "Digital twin (PIDD)", "kinematic": "Kinematic limits", "pb": "Physics only", "conservative": "Conservative"}, "default_value": "pidd"},
                 "command": {"label": "gcode-feedopt command", "description": "Full path of the gcode-feedopt executable if it is not on PATH", "type": "str", "default_value": "gcode-feedopt"}
             }
         }"""

@@ -70,7 +70,7 @@ def rms_violation_ratio(path, s_mm, plant, tol_mm, ts_s) -> tuple[float, object]
 
 
 def plan_conservative(path, profile, *, tolerance_mm, stringency, plant, vmax_mm_s=None,
-                      amax_mm_s2=None, fw_limits=None):
+                      amax_mm_s2=None, fw_limits=None, use_slicer_feed: bool = False):
     """Largest common scale of V_max and A_max (bisection) whose trapezoid plan keeps
     RMS γ / E_max ≤ 1 − η on ``plant``."""
     vmax, _, axis_a = effective_limits(profile, vmax_mm_s, amax_mm_s2)
@@ -80,7 +80,7 @@ def plan_conservative(path, profile, *, tolerance_mm, stringency, plant, vmax_mm
 
     def run(scale):
         sch = plan_kinematic(path, profile, vmax_mm_s=vmax * scale, amax_mm_s2=amax * scale,
-                             fw_limits=fw_limits)
+                             fw_limits=fw_limits, use_slicer_feed=use_slicer_feed)
         r, m = rms_violation_ratio(path, sch.s_mm, plant, tolerance_mm, profile.ts_s)
         return sch, r, m
 
@@ -215,7 +215,7 @@ def check_noise_floor(predictor, profile, tolerance_mm: float, stringency: float
 
 def plan_offline(path, profile, method: str, *, tolerance_mm: float, stringency: float,
                  vmax_mm_s=None, amax_mm_s2=None, plant=None, fw_limits=None,
-                 settings=None) -> Schedule:
+                 settings=None, use_slicer_feed: bool = False) -> Schedule:
     """Offline plan of a whole file for pb | pidd | oracle: the firmware's own plan slowed
     down locally until the twin (or, for the oracle, the plant) keeps the chance bound on
     every sample (optimize.slowdown; the window LP of mpc.py is the full method it is tested
@@ -232,7 +232,7 @@ def plan_offline(path, profile, method: str, *, tolerance_mm: float, stringency:
     vmax, axis_v, axis_a = effective_limits(profile, vmax_mm_s, amax_mm_s2)
     limits = planner_limits(path, vmax_mm_s=vmax, axis_vmax_mm_s=axis_v,
                             axis_amax_mm_s2=axis_a, firmware=profile.firmware,
-                            fw_limits=fw_limits)
+                            fw_limits=fw_limits, use_slicer_feed=use_slicer_feed)
     z = float(norm.ppf(stringency))
     kw = dict(z=z, tol_mm=tolerance_mm, overshoot_reach_mm=max(1.0, OVERSHOOT_LAG_S * vmax))
     rules = ContourRules(path)
@@ -259,7 +259,7 @@ def plan_offline(path, profile, method: str, *, tolerance_mm: float, stringency:
 def plan_mpc(path, profile, predictor, *, method, tolerance_mm, stringency, vmax_mm_s=None,
              amax_mm_s2=None, settings: MpcSettings | None = None, plant=None,
              online: bool = False, fw_limits=None, free: bool = True, screen: bool = True,
-             workers: int | None = None):
+             workers: int | None = None, use_slicer_feed: bool = False):
     """Receding-window plan of the whole path with ``predictor``; with ``plant`` and
     ``online`` the plant runs each committed window and the predictor observes it."""
     vmax, axis_v, axis_a = effective_limits(profile, vmax_mm_s, amax_mm_s2)
@@ -292,7 +292,8 @@ def plan_mpc(path, profile, predictor, *, method, tolerance_mm, stringency, vmax
     fp = None
     if free:
         fp = FreePlan(path, plan_kinematic(path, profile, vmax_mm_s=vmax_mm_s,
-                                           amax_mm_s2=amax_mm_s2, fw_limits=fw_limits))
+                                           amax_mm_s2=amax_mm_s2, fw_limits=fw_limits,
+                                           use_slicer_feed=use_slicer_feed))
     planner = MpcPlanner(path, predictor, ts_s=ts, vmax_mm_s=vmax,
                          amax_mm_s2=np.array([axis_a["x"], axis_a["y"]]), tol_mm=tolerance_mm,
                          z=z, settings=settings, axis_vmax_mm_s=axis_v, on_commit=on_commit,
@@ -370,7 +371,7 @@ def plan_mpc(path, profile, predictor, *, method, tolerance_mm, stringency, vmax
 def plan_schedule(method: str, path, profile, *, tolerance_mm: float, stringency: float,
                   vmax_mm_s: float | None = None, amax_mm_s2: float | None = None,
                   plant=None, online: bool = False, settings: MpcSettings | None = None,
-                  fw_limits=None, **opts) -> Schedule:
+                  fw_limits=None, use_slicer_feed: bool = False, **opts) -> Schedule:
     """The Schedule of ``method`` on ``path`` (see the module docstring).
 
     Args:
@@ -383,6 +384,8 @@ def plan_schedule(method: str, path, profile, *, tolerance_mm: float, stringency
             on (online). Default: the profile's nominal plant (the FRF set's mean response).
         online: learn from the plant's measurements window by window (pb never learns).
         settings: MpcSettings (window length, horizon, solver, ...) of the window optimizer.
+        use_slicer_feed: never faster than the slicer's F (every method plans below the
+            firmware's plan at those feeds).
         opts: ``optimizer`` (``slowdown`` offline by default, ``window`` online and on
             request), ``seed`` (the default plant), and the window optimizer's ``free``,
             ``screen``, ``workers``.
@@ -404,7 +407,7 @@ def plan_schedule(method: str, path, profile, *, tolerance_mm: float, stringency
                            "virtual machine needs the window optimizer")
     if method == "kinematic":
         return plan_kinematic(path, profile, vmax_mm_s=vmax_mm_s, amax_mm_s2=amax_mm_s2,
-                              fw_limits=fw_limits)
+                              fw_limits=fw_limits, use_slicer_feed=use_slicer_feed)
     if plant is None and method in ("conservative", "oracle"):
         from ..vm.plant import Plant
 
@@ -412,11 +415,11 @@ def plan_schedule(method: str, path, profile, *, tolerance_mm: float, stringency
     if method == "conservative":
         return plan_conservative(path, profile, tolerance_mm=tolerance_mm, stringency=stringency,
                                  plant=plant, vmax_mm_s=vmax_mm_s, amax_mm_s2=amax_mm_s2,
-                                 fw_limits=fw_limits)
+                                 fw_limits=fw_limits, use_slicer_feed=use_slicer_feed)
     if optimizer == "slowdown":
         return plan_offline(path, profile, method, tolerance_mm=tolerance_mm,
                             stringency=stringency, vmax_mm_s=vmax_mm_s, amax_mm_s2=amax_mm_s2,
-                            plant=plant, fw_limits=fw_limits)
+                            plant=plant, fw_limits=fw_limits, use_slicer_feed=use_slicer_feed)
     if method == "oracle":
         predictor = PlantPredictor(plant)
     else:
@@ -424,4 +427,5 @@ def plan_schedule(method: str, path, profile, *, tolerance_mm: float, stringency
     return plan_mpc(path, profile, predictor, method=method, tolerance_mm=tolerance_mm,
                     stringency=stringency, vmax_mm_s=vmax_mm_s, amax_mm_s2=amax_mm_s2,
                     settings=settings, plant=plant, online=online, fw_limits=fw_limits,
+                    use_slicer_feed=use_slicer_feed,
                     **{k: opts[k] for k in ("free", "screen", "workers") if k in opts})

@@ -349,3 +349,21 @@ def test_online_plan_proceeds_where_a_learned_disturbance_leaves_no_room(ender, 
     run = run_method("pidd", path, ender, plant, tolerance_mm=0.1, stringency=0.95)
     assert run.info["relaxed_windows"] > 0
     assert run.within_fraction >= 0.95
+
+
+@pytest.mark.parametrize("method, optimizer", [("pidd", "slowdown"), ("pidd", "window"),
+                                               ("conservative", None)])
+def test_slicer_feed_caps_every_method(ender, butterfly_piece, method, optimizer):
+    """--use-slicer-feed (keep the slicer's cooling slow-downs): no sample is faster than the
+    slicer's F of the moves it spans (the butterfly prints at F1800 = 30 mm/s); it used to
+    hold for the kinematic method only."""
+    _, path = butterfly_piece
+    opts = {"optimizer": optimizer} if optimizer else {}
+    s = plan_schedule(method, path, ender, tolerance_mm=0.1, stringency=0.95,
+                      use_slicer_feed=True, **opts)
+    a, b = path.segment_at(s.s_mm[:-1]), path.segment_at(s.s_mm[1:])
+    feed = np.maximum(path.feed_mm_s[a], path.feed_mm_s[b])
+    assert np.all(np.diff(s.s_mm) / s.ts_s <= feed * (1 + 1e-6) + 1e-9)
+    assert np.any(path.de_mm > 0) and np.allclose(path.feed_mm_s[path.de_mm > 0], 30.0)
+    free = plan_schedule(method, path, ender, tolerance_mm=0.1, stringency=0.95, **opts)
+    assert s.duration_s > 1.2 * free.duration_s
