@@ -70,8 +70,9 @@ class ContourRules:
         extruding: (N,) bool, segments whose contour error is constrained (every segment when
             the file never extrudes, e.g. a CNC job).
         vertex_s, vertex_xy, vertex_u: (V,), (V, 2), (V, 2) path position, XY and incoming unit
-            direction of every vertex where the path turns back by more than 90° between
-            constrained segments (not at an exact stop).
+            direction of every vertex where the path turns back by more than 90° next to a
+            constrained segment (not at an exact stop), and of every end of an extrusion where
+            the XY path does not go straight on (exact stop, Z lift, turn back).
     """
 
     def __init__(self, path):
@@ -79,26 +80,27 @@ class ContourRules:
         ext = np.asarray(path.de_mm, float) > 1e-9
         self.extruding = ext if ext.any() else np.ones_like(ext)
         self._ext_cum = np.concatenate([[0], np.cumsum(self.extruding)])
-        # sharp vertices (the path turns back by more than 90°) between constrained segments:
-        # the actual position must not overshoot past them along the incoming direction
+        # vertices the actual position must not overshoot along the incoming direction:
+        # - sharp ones (the path turns back by more than 90°) between moves, one of them
+        #   constrained;
+        # - ends of an extrusion where the XY path does not go straight on (an exact stop, a
+        #   Z lift, a turn back into a travel): running past the end point still deposits
         t_beg, t_end = path.end_tangents()
         n = path.n_segments
-        if n > 1:
-            u_in = t_end[:-1, :2]
-            u_out = t_beg[1:, :2]
-            nin = np.linalg.norm(u_in, axis=1)
-            nout = np.linalg.norm(u_out, axis=1)
-            dot = np.sum(u_in * u_out, axis=1) / np.maximum(nin * nout, 1e-12)
-            sharp = (dot < 0.0) & (nin > 0.5) & (nout > 0.5) & \
-                (self.extruding[:-1] | self.extruding[1:]) & ~np.asarray(path.stop_after[:-1], bool)
-            j = np.flatnonzero(sharp)
-            self.vertex_s = np.asarray(path.s0_mm, float)[j + 1]
-            self.vertex_xy = np.asarray(path.end_mm, float)[j, :2]
-            self.vertex_u = u_in[j] / nin[j][:, None]
-        else:
-            self.vertex_s = np.zeros(0)
-            self.vertex_xy = np.zeros((0, 2))
-            self.vertex_u = np.zeros((0, 2))
+        stop = np.asarray(path.stop_after, bool)
+        u_in = t_end[:, :2]
+        nin = np.linalg.norm(u_in, axis=1)
+        u_out = np.vstack([t_beg[1:, :2], np.zeros((1, 2))])  # nothing after the last move
+        nout = np.linalg.norm(u_out, axis=1)
+        dot = np.sum(u_in * u_out, axis=1) / np.maximum(nin * nout, 1e-12)
+        nxt_ext = np.concatenate([self.extruding[1:], [False]])
+        sharp = (dot < 0.0) & (nin > 0.5) & (nout > 0.5) & (self.extruding | nxt_ext) & ~stop
+        ends = self.extruding & (stop | ~nxt_ext) & (nin > 0.5) & \
+            (stop | (nout <= 0.5) | (dot < 0.0))
+        j = np.flatnonzero(sharp | ends)
+        self.vertex_s = np.asarray(path.s0_mm, float)[j + 1]
+        self.vertex_xy = np.asarray(path.end_mm, float)[j, :2]
+        self.vertex_u = u_in[j] / np.maximum(nin[j], 1e-12)[:, None] if j.size else np.zeros((0, 2))
 
     def overshoot_rows(self, s_bar, on, reach_mm: float, tol_mm: float):
         """(k, u, b) half-planes u·x̃_k ≤ b = u·V + E_max for every horizon sample k (with

@@ -497,17 +497,7 @@ class MpcPlanner:
                     accepted = s_ref  # kinematically valid: a continuation or rest
                     status = "held"
             still = accepted[min(nw, accepted.size) - 1] <= s_start + 1e-12
-            if still and self.free is not None and stall < STALL_PROCEED and verified is None:
-                # standing still: does waiting help (residual vibration decays within the
-                # horizon), or is the error still there at its end (a disturbance)?
-                accepted = np.maximum.accumulate(np.clip(accepted, s_start, s_max))
-                verified = self._verify(accepted, s_max)
-                _, _, _, mu_r, sig_r = verified
-                tail = slice(max(0, mu_r.size - self.st.n_hold), mu_r.size)
-                on = self.free.constrained(accepted, s_start)[tail]
-                if np.any(on & (np.abs(mu_r[tail]) + self.z * sig_r[tail] > self.tol)):
-                    stall = STALL_PROCEED
-            if (self.free is not None and stall >= STALL_PROCEED and still):
+            if self.free is not None and stall >= STALL_PROCEED and still:
                 # standing still has not cured the chance constraint for STALL_PROCEED windows:
                 # the predicted error is not the motion's (a learned disturbance larger than
                 # the tolerance leaves room for). Proceed along the firmware's plan, as the

@@ -233,3 +233,15 @@ def test_a_disturbance_larger_than_the_tolerance_is_given_up_on_not_crawled_thro
     assert res.info["relaxed_samples"] > 0
     F = plan_kinematic(path, ender, fw_limits=fw)
     assert res.s_mm.size < 1.3 * F.s_mm.size
+
+
+def test_an_extrusion_ending_in_a_z_lift_is_an_overshoot_vertex(ender):
+    """Running past the end of the butterfly's last extrusion (the next move lifts Z) still
+    deposits: that end is a vertex of the overshoot half-planes, as sharp reversals are."""
+    path, _ = _butterfly(ender)
+    rules = ContourRules(path)
+    last_ext = int(np.flatnonzero(path.de_mm > 0)[-1])
+    assert np.any(np.isclose(rules.vertex_s, path.s0_mm[last_ext + 1]))
+    straight = np.flatnonzero((path.de_mm[:-1] > 0) & (path.de_mm[1:] > 0))
+    assert not np.any(np.isin(np.round(rules.vertex_s, 9),
+                              np.round(path.s0_mm[straight[:50] + 1], 9)))

@@ -119,3 +119,34 @@ def test_windowed_distance_matches_brute_force():
     u = np.clip(np.einsum("mkj,kj->mk", r, d) / np.einsum("kj,kj->k", d, d), 0, 1)
     brute = np.linalg.norm(r - u[..., None] * d[None], axis=2).min(axis=1)
     np.testing.assert_allclose(got, brute, atol=1e-12)
+
+
+def test_standing_still_the_window_keeps_the_path_around_the_command():
+    """A command that runs along X, stops for 0.4 s and goes on: the machine overshooting
+    0.08 mm *along* the line while the command stands still is on the path (distance 0),
+    the same 0.08 mm *across* it is a contour error of 0.08 mm. With a window of ±W raw
+    samples the standstill shrank the polyline to a point and both read 0.08 mm."""
+    v, ts = 20.0, TS
+    x = np.concatenate([np.arange(0, 100) * v * ts, np.full(200, 100 * v * ts),
+                        100 * v * ts + np.arange(1, 100) * v * ts])
+    cmd = np.column_stack([x, np.zeros_like(x)])
+    k = 150  # in the standstill
+    W = int(round(m.CONTOUR_WINDOW_S / ts))
+    along = cmd[k] + [0.08, 0.0]
+    across = cmd[k] + [0.0, 0.08]
+    got = m.distance_to_polyline_window(np.array([along, across]), cmd, W,
+                                        index=np.array([k, k]))
+    np.testing.assert_allclose(got, [0.0, 0.08], atol=1e-12)
+    raw = m.distance_to_polyline_window(np.array([along]), cmd, W, index=np.array([k]),
+                                        min_step_mm=0.0)
+    assert raw[0] == pytest.approx(0.08)
+
+
+def test_thinning_keeps_corners_and_both_ends():
+    t = np.linspace(0.0, 1.0, 201)
+    poly = np.vstack([np.column_stack([t, 0 * t]), np.column_stack([1 + 0 * t[1:], t[1:]])])
+    kept, at = m.thin_polyline(poly, 0.05)
+    assert kept[0] == 0 and kept[-1] == poly.shape[0] - 1
+    assert 200 in kept  # the corner at (1, 0)
+    assert np.all(np.diff(kept) > 0) and at.shape == (poly.shape[0],)
+    assert kept.size < 0.3 * poly.shape[0]
