@@ -142,26 +142,34 @@ class ContourRules:
         keep = np.sum(U * (xy - V), axis=1) <= 1e-9
         return kk[keep], U[keep], V[keep]
 
-    def constrained_pairs(self, s, s_prev) -> np.ndarray:
-        """:meth:`constrained` with the previous sample of every sample given (whole plans
-        evaluated in windows)."""
+    def constrained_pairs(self, s, s_prev, s_next=None) -> np.ndarray:
+        """:meth:`constrained` with the samples before (and after) every sample given (whole
+        plans evaluated in windows)."""
+        s = np.asarray(s, float)
+        on = self._covers_extrusion(np.asarray(s_prev, float), s)
+        if s_next is not None:
+            on |= self._covers_extrusion(s, np.asarray(s_next, float))
+        return on
+
+    def _covers_extrusion(self, s_a, s_b) -> np.ndarray:
+        """bool per interval [s_a, s_b]: some segment it covers extrudes."""
         n = self.extruding.size
-        b = np.clip(self.path.segment_at(np.asarray(s, float)), 0, n - 1)
-        a = np.minimum(np.clip(self.path.segment_at(np.asarray(s_prev, float)), 0, n - 1), b)
+        b = np.clip(self.path.segment_at(s_b), 0, n - 1)
+        a = np.minimum(np.clip(self.path.segment_at(s_a), 0, n - 1), b)
         return self._ext_cum[b + 1] - self._ext_cum[a] > 0
 
     def constrained(self, s, s_before: float | None = None) -> np.ndarray:
-        """bool per sample: its contour error is constrained — some segment it covers since
-        the previous sample extrudes (the virtual machine counts a sample whose interval
-        deposits material, so a 0.05 mm travel right after an extrusion still counts).
-        ``s_before``: the sample before s[0] (default s[0] itself)."""
+        """bool per sample: its contour error is constrained — some segment covered by the
+        interval before it or the one after it extrudes (as the virtual machine's metric
+        counts a sample: a 0.05 mm travel right after an extrusion still deposits, and the
+        last travel sample before one is where the nozzle starts it). ``s_before``: the
+        sample before s[0] (default s[0] itself); the last sample has no interval after."""
         s = np.asarray(s, float)
-        n = self.extruding.size
-        b = np.clip(self.path.segment_at(s), 0, n - 1)
-        prev = np.concatenate([[s[0] if s_before is None else s_before], s[:-1]]) if s.size else s
-        a = np.clip(self.path.segment_at(prev), 0, n - 1)
-        a = np.minimum(a, b)
-        return self._ext_cum[b + 1] - self._ext_cum[a] > 0
+        if s.size == 0:
+            return np.zeros(0, bool)
+        prev = np.concatenate([[s[0] if s_before is None else s_before], s[:-1]])
+        nxt = np.concatenate([s[1:], s[-1:]])
+        return self.constrained_pairs(s, prev, nxt)
 
 
 class FreePlan(ContourRules):

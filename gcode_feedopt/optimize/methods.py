@@ -241,7 +241,7 @@ def plan_offline(path, profile, method: str, *, tolerance_mm: float, stringency:
     else:
         predictor = make_twin_predictor(profile, method, learn=False)
         check_noise_floor(predictor, profile, tolerance_mm, stringency)
-        evaluator = TwinEvaluator(predictor, rules, **kw)
+        evaluator = TwinEvaluator(predictor, rules, ts_s=profile.ts_s, **kw)
     res = plan_slowdown(path, limits, evaluator, ts_s=profile.ts_s, settings=settings)
     on = res.bound_mm > 0
     info = dict(res.info)

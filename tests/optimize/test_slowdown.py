@@ -15,9 +15,8 @@ from scipy.stats import norm
 from gcode_feedopt import pipeline
 from gcode_feedopt.optimize.free import ContourRules, evaluate
 from gcode_feedopt.optimize.methods import make_twin_predictor, plan_schedule
-from gcode_feedopt.optimize.predictors import predict_trajectory
 from gcode_feedopt.optimize.slowdown import (PlanGrid, PlantEvaluator, SlowdownSettings,
-                                             TwinEvaluator, plan_slowdown)
+                                             TwinEvaluator, plan_bound, plan_slowdown)
 from gcode_feedopt.plan.kinematic import effective_limits, plan_kinematic, planner_limits
 from gcode_feedopt.profile import load_profile
 from gcode_feedopt.vm import firmware
@@ -55,7 +54,7 @@ def _limits(path, ender, fw):
 def _twin_evaluator(ender, path, tol=0.1, eta=0.95):
     tp = make_twin_predictor(ender, "pidd", learn=False)
     return TwinEvaluator(tp, ContourRules(path), z=norm.ppf(eta), tol_mm=tol,
-                         overshoot_reach_mm=1.4)
+                         overshoot_reach_mm=1.4, ts_s=ender.ts_s)
 
 
 def test_grid_at_full_scale_is_the_firmware_plan(ender, benchy):
@@ -129,17 +128,12 @@ def test_plan_keeps_the_bound_on_every_sample_as_the_whole_file_twin_predicts(en
     ev = _twin_evaluator(ender, path)
     res = plan_slowdown(path, _limits(path, ender, fw), ev, ts_s=ender.ts_s,
                         settings=SlowdownSettings(workers=1))
-    s = res.s_mm
-    geo = ev.geometry(path, s, np.concatenate([[0.0], s[:-1]]))
-    mean, std = predict_trajectory(ev.tp, geo["cmd"])
-    bound, _, _ = ev.bound(geo, mean, std)
+    bound = plan_bound(ev, path, res.s_mm)
     np.testing.assert_allclose(res.bound_mm, bound, atol=1e-9, rtol=0)
     assert bound.max() <= 0.1 + 1e-12
     assert res.info["relaxed_samples"] == 0
     F = plan_kinematic(path, ender, fw_limits=fw)
-    gF = ev.geometry(path, F.s_mm, np.concatenate([[0.0], F.s_mm[:-1]]))
-    bF, _, _ = ev.bound(gF, *predict_trajectory(ev.tp, gF["cmd"]))
-    assert bF.max() > 0.12  # F itself breaks it: the test is not vacuous
+    assert plan_bound(ev, path, F.s_mm).max() > 0.12  # F breaks it: the test is not vacuous
     assert res.info["slowed_length_fraction"] > 0.01
 
 
