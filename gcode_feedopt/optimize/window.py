@@ -420,6 +420,20 @@ def solve_linprog(lp: LinearProgram):
     return STATUS_FAILED, None, int(getattr(res, "nit", 0))
 
 
+def _osqp_major() -> int:
+    import osqp
+
+    return int(str(getattr(osqp, "__version__", "0")).split(".")[0] or 0)
+
+
+def _osqp_flags() -> dict:
+    """Solution polishing and warm starts on, under OSQP's names of the installed version
+    (1.0 renamed them to polishing / warm_starting and deprecated the old ones)."""
+    if _osqp_major() >= 1:
+        return {"polishing": True, "warm_starting": True}
+    return {"polish": True, "warm_start": True}
+
+
 class OsqpWindowSolver:
     """OSQP on the window LP plus ``OSQP_RHO_QUAD``·||w||²/2, kept between windows: when the
     problem has the same shape the matrices are updated in place and the previous solution
@@ -456,12 +470,12 @@ class OsqpWindowSolver:
             self._prob = osqp.OSQP()
             self._prob.setup(P=sp.triu(P, format="csc"), q=q, A=Acsc, l=lo, u=hi,
                              eps_abs=OSQP_EPS, eps_rel=OSQP_EPS, max_iter=OSQP_MAX_ITER,
-                             polish=True, verbose=False, warm_start=True)
+                             verbose=False, **_osqp_flags())
             self._shape = shape
             self._pattern = pattern
         if warm is not None:
             self._prob.warm_start(x=warm)
-        res = self._prob.solve()
+        res = self._prob.solve(**({"raise_error": False} if _osqp_major() >= 1 else {}))
         status = res.info.status
         if status in ("solved", "solved inaccurate"):
             return STATUS_OPTIMAL, res.x, int(res.info.iter)
