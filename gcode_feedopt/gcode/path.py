@@ -199,29 +199,23 @@ def build_path(program: Program, *, e_feed_cap_mm_s: float = 25.0,
             add_stop(ev.dwell_s)
         ev = next(ev_iter, None)
     n = len(seg_moves)
-    start = np.empty((n, 3))
-    end = np.empty((n, 3))
+    seg = [moves[mi] for mi in seg_moves]
+    # one list per field, then one array each (row-by-row assignment costs more than the rest
+    # of the function)
+    start = np.array([mv.start_mm for mv in seg], dtype=float).reshape(n, 3)
+    end = np.array([mv.end_mm for mv in seg], dtype=float).reshape(n, 3)
     kind = np.zeros(n, dtype=np.int8)
     center = np.full((n, 2), np.nan)
     radius = np.zeros(n)
     theta0 = np.zeros(n)
     sweep = np.zeros(n)
-    length = np.empty(n)
-    de = np.empty(n)
-    mkind = np.empty(n, dtype=np.int8)
-    layer = np.empty(n, dtype=np.int32)
-    feed = np.empty(n)
-    fixed = np.zeros(n, dtype=bool)
-    for k, mi in enumerate(seg_moves):
-        mv = moves[mi]
-        start[k] = mv.start_mm
-        end[k] = mv.end_mm
-        length[k] = mv.xyz_length_mm
-        de[k] = mv.de_mm
-        mkind[k] = KIND_CODES[mv.kind]
-        layer[k] = mv.layer
-        feed[k] = mv.feed_mm_s
-        fixed[k] = mv.fixed
+    length = np.array([mv.xyz_length_mm for mv in seg], dtype=float)
+    de = np.array([mv.de_mm for mv in seg], dtype=float)
+    mkind = np.array([KIND_CODES[mv.kind] for mv in seg], dtype=np.int8)
+    layer = np.array([mv.layer for mv in seg], dtype=np.int32)
+    feed = np.array([mv.feed_mm_s for mv in seg], dtype=float)
+    fixed = np.array([mv.fixed for mv in seg], dtype=bool)
+    for k, mv in enumerate(seg):
         if mv.arc is not None:
             kind[k] = SEG_ARC_CW if mv.arc.cw else SEG_ARC_CCW
             center[k] = mv.arc.center_mm

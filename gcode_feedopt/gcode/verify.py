@@ -18,8 +18,6 @@ import os
 import pathlib
 import tempfile
 
-import numpy as np
-
 from ..errors import VerifyError
 from .reader import Program, read_program, split_lines
 from .writer import T_IDENT, T_META, T_NEW, T_ORIG, WriteResult
@@ -63,9 +61,9 @@ def verify(program: Program, result: WriteResult, *, flavour: str, g91_relative_
         if tag == T_NEW:
             owner_of_line[k] = i
     n_in = len(program.moves)
-    de_sum = np.zeros(n_in)
+    # Python floats, not a numpy array: the same sums, without a numpy scalar per move
+    de_sum = [0.0] * n_in
     last_end = {}
-    last_e = {}
     tags = result.tags
     for mv in out.moves:
         i = owner_of_line.get(mv.line_no)
@@ -75,9 +73,8 @@ def verify(program: Program, result: WriteResult, *, flavour: str, g91_relative_
                 raise VerifyError(f"{name}:{mv.line_no + 1}: a line we added moves the machine; "
                                   "nothing was written")
             continue
-        de_sum[i] += mv.de_mm
+        de_sum[i] += mv.e_end_mm - mv.e_start_mm
         last_end[i] = mv.end_mm
-        last_e[i] = mv.e_end_mm
     for i in sorted(set(owner_of_line.values())):
         orig = program.moves[i]
         if abs(de_sum[i] - orig.de_mm) > E_TOL_MM:
@@ -85,7 +82,9 @@ def verify(program: Program, result: WriteResult, *, flavour: str, g91_relative_
                               f"{de_sum[i]:.7f} mm instead of {orig.de_mm:.7f} mm; nothing was "
                               "written")
         end = last_end.get(i)
-        if end is None or max(abs(a - b) for a, b in zip(end, orig.end_mm)) > XYZ_TOL_MM:
+        oe = orig.end_mm
+        if end is None or max(abs(end[0] - oe[0]), abs(end[1] - oe[1]),
+                              abs(end[2] - oe[2])) > XYZ_TOL_MM:
             raise VerifyError(f"{name}: move on input line {orig.line_no + 1} no longer ends at "
                               f"{orig.end_mm}; nothing was written")
     # every original move's end point must still be reached, re-timed or not: compare the

@@ -136,6 +136,95 @@ def _firmware_band(v_plan: np.ndarray, s_mid: np.ndarray, t_mid: np.ndarray, L: 
     return None
 
 
+#: Segments per batch of :func:`single_piece_speeds` (bounds its temporary arrays: a batch
+#: holds about this many segments' samples, a few MB, instead of the whole file's).
+_BATCH_SEGMENTS = 8192
+
+
+def single_piece_speeds(s_mm: np.ndarray, ts_s: float, s0_mm: np.ndarray, t_start_s: np.ndarray,
+                        t_end_s: np.ndarray, accel_mm_s2: np.ndarray | None,
+                        sampled: bool) -> np.ndarray:
+    """(N,) the speed of the one line :func:`_pieces` writes for each segment, mm/s; NaN where
+    it may write more than one (those go through :func:`_pieces` itself).
+
+    Batched over all segments: a segment without a sample inside it (one line at its average
+    speed) and, unless ``sampled``, a segment whose plan is the firmware's own trapezoid
+    (:func:`_firmware_band`, one line at the peak speed). The arithmetic is :func:`_pieces`'s
+    and :func:`_firmware_band`'s element for element (the same operations in the same order,
+    maxima instead of sums), so the speeds — and the F texts — are bit-identical
+    (tests/gcode/test_writer_fast.py).
+
+    s_mm: (K,) the schedule; s0_mm: (N+1,) segment boundaries; t_start_s, t_end_s: (N,) motion
+    start and end of each segment (:func:`segment_times`); accel_mm_s2: (N,) or None."""
+    n = s0_mm.size - 1
+    lo = s0_mm[:-1]
+    hi = s0_mm[1:]
+    L = hi - lo
+    j0 = np.searchsorted(s_mm, lo, side="right")
+    j1 = np.searchsorted(s_mm, hi, side="left")
+    n_in = np.maximum(j1 - j0, 0)
+    out = np.full(n, np.nan)
+    trivial = (n_in == 0) | (L <= 0)
+    out[trivial] = L[trivial] / np.maximum(t_end_s - t_start_s, 1e-9)[trivial]
+    if sampled or accel_mm_s2 is None:
+        return out
+    acc = np.asarray(accel_mm_s2, dtype=float)
+    cand = np.flatnonzero(~trivial & (acc > 0) & np.isfinite(acc))
+    for b in range(0, cand.size, _BATCH_SEGMENTS):
+        sel = cand[b:b + _BATCH_SEGMENTS]
+        ok, vpk = _band_batch(s_mm, ts_s, lo[sel], L[sel], j0[sel], n_in[sel], t_start_s[sel],
+                              t_end_s[sel], acc[sel])
+        out[sel[ok]] = vpk[ok]
+    return out
+
+
+def _band_batch(s_mm, ts_s, lo, L, j0, n_in, ta, tb, accel):
+    """:func:`_firmware_band` of M segments at once: (M,) accepted, (M,) peak speed mm/s.
+
+    Each segment's points (start, its n_in samples, end) are laid out one after the other
+    (``off``: (M,) first point of each); its n_in + 1 intervals follow the same layout with
+    the interval that would join two segments left out (``istart``: (M,) first interval)."""
+    m = lo.size
+    npts = n_in + 2
+    off = np.concatenate([[0], np.cumsum(npts)[:-1]])
+    total = int(off[-1] + npts[-1])
+    u = np.empty(total)
+    t = np.empty(total)
+    u[off] = 0.0
+    t[off] = ta
+    u[off + n_in + 1] = 1.0
+    t[off + n_in + 1] = tb
+    seg = np.repeat(np.arange(m), n_in)
+    local = np.arange(seg.size) - np.repeat(np.cumsum(n_in) - n_in, n_in)
+    j = j0[seg] + local
+    pos = off[seg] + 1 + local
+    u[pos] = (s_mm[j] - lo[seg]) / L[seg]
+    t[pos] = j * ts_s
+    keep = np.ones(total - 1, dtype=bool)
+    keep[off[1:] - 1] = False
+    nint = n_in + 1
+    istart = off - np.arange(m)
+    Lr = np.repeat(L, nint)
+    du = (u[1:] - u[:-1])[keep] * Lr
+    dt = (t[1:] - t[:-1])[keep]
+    v = np.where(dt > 0, du / np.where(dt > 0, dt, 1.0), 0.0)
+    s_mid = (u[:-1] + u[1:])[keep] * 0.5 * Lr
+    t_mid = (t[:-1] + t[1:])[keep] * 0.5
+    vpk = np.maximum.reduceat(v, istart)
+    last = istart + n_in
+    v0 = np.maximum(v[istart] - accel * (t_mid[istart] - ta), 0.0)
+    v1 = np.maximum(v[last] - accel * (tb - t_mid[last]), 0.0)
+    a2 = np.repeat(2 * accel, nint)
+    vpk_r = np.repeat(vpk, nint)
+    v0_r = np.repeat(v0, nint)
+    v1_r = np.repeat(v1, nint)
+    v_fw = np.sqrt(np.minimum(np.minimum(vpk_r * vpk_r, v0_r * v0_r + a2 * s_mid),
+                              v1_r * v1_r + a2 * np.maximum(Lr - s_mid, 0.0)))
+    err = np.maximum.reduceat(np.abs(v_fw - v), istart)
+    band = np.maximum(SPEED_TOL * vpk, SPEED_TOL_ABS_MM_S)
+    return err <= band, vpk
+
+
 def _pieces(u_pts: np.ndarray, t_pts: np.ndarray, L: float, min_dt: float, sampled: bool,
             accel: float = 0.0):
     """Split one segment into as few pieces as keep F within the speed tolerance of the plan.
@@ -199,6 +288,51 @@ def _pieces(u_pts: np.ndarray, t_pts: np.ndarray, L: float, min_dt: float, sampl
     if not out:
         return [(1.0, L / max(t_pts[-1] - t_pts[0], 1e-9))]
     # a last piece shorter than min_dt is merged into the one before it
+    if len(out) > 1:
+        u_a = out[-3][0] if len(out) > 2 else 0.0
+        u_b = out[-2][0]
+        if t_pts[-1] - _t_of(u_pts, t_pts, u_b) < min_dt:
+            t_a = _t_of(u_pts, t_pts, u_a)
+            out = out[:-2] + [(1.0, (1.0 - u_a) * L / max(t_pts[-1] - t_a, 1e-9))]
+    out[-1] = (1.0, out[-1][1])
+    return out
+
+
+def _split_pieces(u_pts: np.ndarray, t_pts: np.ndarray, L: float, min_dt: float):
+    """``_pieces(u_pts, t_pts, L, min_dt, sampled=False, accel=0.0)`` for a segment with
+    samples inside it (u_pts.size > 2, L > 0): the same greedy split on Python floats instead
+    of numpy scalars (a segment holds a handful of samples, where numpy's per-call cost is
+    all there is). The piece lengths are still ``np.sum`` of the same slices (numpy sums in
+    its own order), so every piece is bit-identical (tests/gcode/test_writer_fast.py)."""
+    du = np.diff(u_pts) * L
+    dt = np.diff(t_pts)
+    v = np.where(dt > 0, du / np.where(dt > 0, dt, 1.0), 0.0).tolist()
+    tl = t_pts.tolist()
+    ul = u_pts.tolist()
+    out = []
+    j0 = 0
+    n = len(v)
+    vmin = vmax = v[0]
+    t_piece0 = tl[0]
+    for j in range(1, n + 1):
+        end = j == n
+        if not end:
+            vj = v[j]
+            lo, hi = min(vmin, vj), max(vmax, vj)
+            band = max(SPEED_TOL * hi, SPEED_TOL_ABS_MM_S)
+            if hi - lo <= band or (tl[j] - t_piece0) < min_dt:
+                vmin, vmax = lo, hi
+                continue
+        d = float(np.sum(du[j0:j]))
+        tt = tl[j] - tl[j0]
+        if d > 0:
+            out.append((ul[j], d / max(tt, 1e-9)))
+        j0 = j
+        t_piece0 = tl[j]
+        if not end:
+            vmin = vmax = v[j]
+    if not out:
+        return [(1.0, L / max(t_pts[-1] - t_pts[0], 1e-9))]
     if len(out) > 1:
         u_a = out[-3][0] if len(out) > 2 else 0.0
         u_b = out[-2][0]
@@ -289,13 +423,99 @@ class _Emitter:
         return out
 
 
+    def split_lines(self, mv, pieces, ending: bytes, comment: bytes) -> list[bytes]:
+        """:meth:`pieces_lines` (the same lines) with the intermediate points of a straight
+        move computed on Python floats, start + (end − start)·u per axis, which is the numpy
+        expression's arithmetic element by element; arcs go to :meth:`pieces_lines`."""
+        if mv.arc is not None:
+            return self.pieces_lines(mv, pieces, ending, comment)
+        words = mv.words
+        axes = [(k, L) for k, L in enumerate("XYZ") if L in words]
+        has_e = "E" in words
+        nd = {L: max(XYZ_DECIMALS, _decimals(words[L])) for _, L in axes}
+        nd_e = max(E_DECIMALS, _decimals(words["E"])) if has_e else E_DECIMALS
+        off = mv.offset_mm
+        start = mv.start_mm
+        end = mv.end_mm
+        rel = mv.xyz_relative
+        written_sum = {L: Decimal(0) for L in "XYZE"}
+        out = []
+        n = len(pieces)
+        for j, (u, v) in enumerate(pieces):
+            last = j == n - 1
+            parts = [mv.code]
+            for k, L in axes:
+                if last:
+                    parts.append(f"{L}{_dec(Decimal(words[L]) - written_sum[L])}" if rel
+                                 else f"{L}{words[L]}")
+                    continue
+                p = start[k] + (end[k] - start[k]) * u
+                if rel:
+                    target = Decimal(_fmt(p - start[k], nd[L]))
+                    delta = target - written_sum[L]
+                    written_sum[L] += delta
+                    txt = _fmt(float(delta), nd[L])
+                else:
+                    txt = _fmt(p - off[k], nd[L])
+                parts.append(f"{L}{txt}")
+            if has_e:
+                if last:
+                    parts.append(f"E{_dec(Decimal(words['E']) - written_sum['E'])}"
+                                 if mv.e_relative else f"E{words['E']}")
+                else:
+                    e = mv.e_start_mm + mv.de_mm * u
+                    if mv.e_relative:
+                        target = Decimal(_fmt(e - mv.e_start_mm, nd_e))
+                        delta = target - written_sum["E"]
+                        written_sum["E"] += delta
+                        parts.append(f"E{_fmt(float(delta), nd_e)}")
+                    else:
+                        parts.append(f"E{_fmt(e - off[3], nd_e)}")
+            parts.append(f"F{_fmt_feed(v)}")
+            line = " ".join(parts).encode("ascii")
+            if j == 0 and comment:
+                line += b" " + comment
+            out.append(line + ending)
+        return out
+
+    def one_line(self, mv, v_mm_s: float, ending: bytes, comment: bytes) -> bytes:
+        """The line :meth:`pieces_lines` writes for a move left in one piece at ``v_mm_s``
+        (``pieces_lines(mv, [(1.0, v_mm_s)], ...)[0]``), without its per-piece geometry: the
+        move's own word texts (relative ones re-formatted as the last piece's exact
+        remainder is), I/J from its start, and the new F."""
+        words = mv.words
+        parts = [mv.code]
+        for L in "XYZ":
+            if L in words:
+                parts.append(f"{L}{_dec(Decimal(words[L]) - Decimal(0))}" if mv.xyz_relative
+                             else f"{L}{words[L]}")
+        arc = mv.arc
+        if arc is not None:
+            cx, cy = arc.center_mm
+            parts.append(f"I{_fmt(cx - mv.start_mm[0], 4)}")
+            parts.append(f"J{_fmt(cy - mv.start_mm[1], 4)}")
+        if "E" in words:
+            parts.append(f"E{_dec(Decimal(words['E']) - Decimal(0))}" if mv.e_relative
+                         else f"E{words['E']}")
+        parts.append(f"F{_fmt_feed(v_mm_s)}")
+        line = " ".join(parts).encode("ascii")
+        if comment:
+            line += b" " + comment
+        return line + ending
+
+
 def write(program: Program, path: Path, schedule: Schedule, profile, *, mode: str = "refeed",
-          accel_mm_s2: np.ndarray | None = None) -> WriteResult:
+          accel_mm_s2: np.ndarray | None = None, fast: bool = True) -> WriteResult:
     """Write the re-timed G-code (see module docstring).
 
     ``accel_mm_s2``: (N,) the acceleration the firmware will use on each segment; where the
     plan follows the firmware's own trapezoid, one line with F = the plan's peak speed
-    reproduces it, so no extra lines are written."""
+    reproduces it, so no extra lines are written.
+
+    ``fast``: decide the moves that stay one line for all segments at once
+    (:func:`single_piece_speeds`) and write them with :meth:`_Emitter.one_line`; every other
+    move goes through :func:`_pieces` and :meth:`_Emitter.pieces_lines`. ``False`` sends every
+    move through those two (the reference the fast path is tested against: same bytes)."""
     sampled = mode == "sampled"
     fw = profile.firmware
     min_dt = 0.0 if sampled else 1.0 / fw.max_lines_per_s
@@ -310,6 +530,11 @@ def write(program: Program, path: Path, schedule: Schedule, profile, *, mode: st
     meta = MetadataUpdater(program, total_s)
     # elapsed time at each line: start of the next segment's motion after it
     seg_lines = np.array([moves[int(m)].line_no for m in path.move_index], dtype=np.int64)
+    k_next = np.searchsorted(seg_lines, np.arange(len(program.lines)), side="right")
+    t_at_line = (np.where(k_next < t_start.size, t_start[np.minimum(k_next, t_start.size - 1)],
+                          total_s) if t_start.size else np.full(k_next.size, total_s)).tolist()
+    one_speed = (single_piece_speeds(s, ts, path.s0_mm, t_start, t_end, accel_mm_s2, sampled)
+                 .tolist() if fast else None)
 
     out: list[bytes] = []
     tags: list = []
@@ -336,6 +561,18 @@ def write(program: Program, path: Path, schedule: Schedule, profile, *, mode: st
             mv = moves[mi]
             k = seg_of_move.get(mi)
             retime = k is not None and not mv.fixed
+            if retime and one_speed is not None and not math.isnan(one_speed[k]):
+                v = one_speed[k]
+                semi = raw.find(b";")
+                comment = raw[semi:].rstrip(b"\r\n") if semi >= 0 else b""
+                out.append(emitter.one_line(mv, v, _ending(raw) or first_ending, comment))
+                tags.append((T_NEW, mi))
+                moves_changed += 1
+                sub_moves += 1
+                cur_feed = v
+                if "F" in mv.words:
+                    orig_feed = float(mv.words["F"]) / 60.0
+                continue
             if retime:
                 ta, tb = t_start[k], t_end[k]
                 lo, hi = path.s0_mm[k], path.s0_mm[k + 1]
@@ -346,12 +583,19 @@ def write(program: Program, path: Path, schedule: Schedule, profile, *, mode: st
                 L = hi - lo
                 u_pts = np.concatenate([[0.0], (inner_s - lo) / L, [1.0]])
                 t_pts = np.concatenate([[ta], inner_t, [tb]])
-                pieces = _pieces(u_pts, t_pts, L, min_dt, sampled,
-                                 0.0 if accel_mm_s2 is None else float(accel_mm_s2[k]))
                 text = raw.decode("latin-1")
                 semi = text.find(";")
                 comment = raw[semi:].rstrip(b"\r\n") if semi >= 0 else b""
-                lines = emitter.pieces_lines(mv, pieces, _ending(raw) or first_ending, comment)
+                ending = _ending(raw) or first_ending
+                if one_speed is not None and not sampled:
+                    # NaN from the fast path: samples inside the segment and no single line
+                    # reproduces them (_firmware_band refused it, or there is no accel)
+                    pieces = _split_pieces(u_pts, t_pts, L, min_dt)
+                    lines = emitter.split_lines(mv, pieces, ending, comment)
+                else:
+                    acc_k = 0.0 if accel_mm_s2 is None else float(accel_mm_s2[k])
+                    pieces = _pieces(u_pts, t_pts, L, min_dt, sampled, acc_k)
+                    lines = emitter.pieces_lines(mv, pieces, ending, comment)
                 out.extend(lines)
                 tags.extend([(T_NEW, mi)] * len(lines))
                 moves_changed += 1
@@ -369,9 +613,7 @@ def write(program: Program, path: Path, schedule: Schedule, profile, *, mode: st
             cur_feed = orig_feed = mv.feed_mm_s
             continue
         # non-motion line
-        k_next = int(np.searchsorted(seg_lines, i, side="right"))
-        t_here = float(t_start[k_next]) if k_next < t_start.size else total_s
-        new = meta.update(i, raw, t_here)
+        new = meta.update(i, raw, t_at_line[i])
         if new is not None:
             out.append(new)
             tags.append((T_META, i))

@@ -152,9 +152,56 @@ class MoveLimits:
     velocity_mm_s: np.ndarray
 
 
-def move_limits(program, profile) -> MoveLimits:
+def move_limits(program, profile, fast: bool = True) -> MoveLimits:
     """What the firmware will allow for each move, honouring the settings found in the file, so
-    a planner can stay within them (the firmware would otherwise run our plan slower)."""
+    a planner can stay within them (the firmware would otherwise run our plan slower).
+
+    ``fast``: the limits looked up per move from one snapshot per event (bit-identical to
+    ``False``, the reference that applies the events move by move)."""
+    if not fast:
+        return _move_limits_reference(program, profile)
+    klipper = profile.firmware.flavour == "klipper"
+    snaps, si = _limit_snapshots(program, profile, klipper)
+    moves = program.moves
+    de = (np.array([mv.e_end_mm for mv in moves], dtype=float)
+          - np.array([mv.e_start_mm for mv in moves], dtype=float))
+    acc = np.where(de > 0, np.array([q.accel_print for q in snaps])[si],
+                   np.array([q.accel_travel for q in snaps])[si])
+    macc = np.array([[q.max_accel[k] for k in "xyz"] for q in snaps]).reshape(-1, 3)[si]
+    mfeed = np.array([[q.max_feed[k] for k in "xyz"] for q in snaps]).reshape(-1, 3)[si]
+    if klipper:
+        jd = np.array([q.scv ** 2 * (math.sqrt(2) - 1) for q in snaps])[si] / acc
+        vel = np.array([q.velocity for q in snaps])[si]
+    else:
+        jd = np.array([q.jd for q in snaps])[si]
+        vel = np.full(len(moves), np.inf)
+    jerk = np.array([[np.nan] * 3 if q.jerk is None else [q.jerk[k] for k in "xyz"]
+                     for q in snaps]).reshape(-1, 3)[si]
+    return MoveLimits(acc, macc, mfeed, jd, jerk, vel)
+
+
+def _limit_snapshots(program, profile, klipper: bool):
+    """The limits in force after each event (``snaps``: E+1, the first before any event) and,
+    (M,) per move, the index of the snapshot in force at it (after every event read before
+    it). The file sets limits a few thousand times at most; a move looks its limits up."""
+    lim = _initial(profile)
+    snaps = [_snapshot(lim)]
+    for ev in program.events:
+        _apply_event(lim, ev, klipper)
+        snaps.append(_snapshot(lim))
+    ev_mi = np.array([ev.move_index for ev in program.events], dtype=np.int64)
+    si = np.searchsorted(ev_mi, np.arange(len(program.moves)), side="right")
+    return snaps, si
+
+
+def _snapshot(lim: _Limits) -> _Limits:
+    return _Limits(lim.accel_print, lim.accel_travel, lim.accel_retract, dict(lim.max_accel),
+                   dict(lim.max_feed), lim.jd, lim.scv, lim.min_cruise_ratio, lim.velocity,
+                   None if lim.jerk is None else dict(lim.jerk))
+
+
+def _move_limits_reference(program, profile) -> MoveLimits:
+    """:func:`move_limits` move by move."""
     klipper = profile.firmware.flavour == "klipper"
     lim = _initial(profile)
     events = program.events
@@ -182,8 +229,19 @@ def move_limits(program, profile) -> MoveLimits:
     return MoveLimits(acc, macc, mfeed, jd, jerk, vel)
 
 
-def build_blocks(program, profile) -> Blocks:
-    """Split the program into the firmware's planner blocks with the limits in force."""
+def build_blocks(program, profile, fast: bool = True) -> Blocks:
+    """Split the program into the firmware's planner blocks with the limits in force.
+
+    ``fast``: straight moves as arrays (:func:`_build_blocks_fast`); ``False``: every move
+    one by one (:func:`_build_blocks_reference`, the reference the fast path is tested against:
+    the same blocks, bit for bit)."""
+    if fast:
+        return _build_blocks_fast(program, profile)
+    return _build_blocks_reference(program, profile)
+
+
+def _build_blocks_reference(program, profile) -> Blocks:
+    """:func:`build_blocks` move by move."""
     fw = profile.firmware
     klipper = fw.flavour == "klipper"
     lim = _initial(profile)
@@ -312,6 +370,209 @@ def build_blocks(program, profile) -> Blocks:
                   jerk_v)
 
 
+def _arc_rows(mv, lim: _Limits, fw, klipper: bool, feed: float):
+    """The chords of one arc move as rows of :func:`_build_blocks_reference` (its code for
+    arcs, unchanged), or None where the arc is too short to move (never for real arcs; the
+    caller then falls back to the reference)."""
+    arc = mv.arc
+    pts = [np.asarray(mv.start_mm, float)]
+    planar = abs(arc.sweep_rad) * arc.radius_mm
+    nseg = max(1, int(math.ceil(planar / fw.mm_per_arc_segment)))
+    th0 = math.atan2(mv.start_mm[1] - arc.center_mm[1], mv.start_mm[0] - arc.center_mm[0])
+    for j in range(1, nseg + 1):
+        u = j / nseg
+        th = th0 + arc.sweep_rad * u
+        pts.append(np.array([arc.center_mm[0] + arc.radius_mm * math.cos(th),
+                             arc.center_mm[1] + arc.radius_mm * math.sin(th),
+                             mv.start_mm[2] + (mv.end_mm[2] - mv.start_mm[2]) * u]))
+    pts[-1] = np.asarray(mv.end_mm, float)
+    total = sum(float(np.linalg.norm(pts[j + 1] - pts[j])) for j in range(len(pts) - 1))
+    if total <= 1e-9:
+        return None
+    de_total = mv.de_mm
+    e0 = mv.e_start_mm
+    base_a = lim.accel_print if de_total > 0 else lim.accel_travel
+    rows = []
+    for j in range(len(pts) - 1):
+        d = pts[j + 1] - pts[j]
+        L = float(np.linalg.norm(d))
+        if L <= 1e-12:
+            continue
+        u = np.abs(d) / L
+        de = de_total * L / total
+        ue = abs(de) / L
+        a = base_a
+        v = feed
+        for k, ax in enumerate("xyz"):
+            if u[k] > 1e-12:
+                a = min(a, lim.max_accel[ax] / u[k])
+                v = min(v, lim.max_feed[ax] / u[k])
+        if ue > 1e-12:
+            a = min(a, lim.max_accel["e"] / ue)
+            v = min(v, lim.max_feed["e"] / ue)
+        peak_a = a * (1.0 - lim.min_cruise_ratio) if klipper else a
+        jd = lim.scv ** 2 * (math.sqrt(2) - 1) / a if klipper else lim.jd
+        rows.append((pts[j], pts[j + 1], e0, de, L, a, peak_a, v, jd, False, lim.jerk))
+        e0 += de
+    return rows
+
+
+def _build_blocks_fast(program, profile) -> Blocks:
+    """:func:`build_blocks` with straight moves as arrays.
+
+    The limits in force are taken once per event (a snapshot after each) and looked up per
+    move; a straight move is one block whose length, caps and accelerations are computed
+    element-wise with the reference's operations in the same order (the length as
+    √((dx² + dy²) + dz²), which is what ``np.linalg.norm`` of a 3-vector gives), so the blocks
+    are bit-identical. Arcs (rare: chords) go through the reference's code."""
+    fw = profile.firmware
+    klipper = fw.flavour == "klipper"
+    moves = program.moves
+    events = program.events
+    m = len(moves)
+    snaps, si = _limit_snapshots(program, profile, klipper)
+    snap_a_print = np.array([q.accel_print for q in snaps])[si]
+    snap_a_travel = np.array([q.accel_travel for q in snaps])[si]
+    macc = np.array([[q.max_accel[k] for k in "xyze"] for q in snaps])[si]
+    mfeed = np.array([[q.max_feed[k] for k in "xyze"] for q in snaps])[si]
+    start = np.array([mv.start_mm for mv in moves], dtype=float).reshape(m, 3)
+    end = np.array([mv.end_mm for mv in moves], dtype=float).reshape(m, 3)
+    e_start = np.array([mv.e_start_mm for mv in moves], dtype=float)
+    de_total = np.array([mv.e_end_mm for mv in moves], dtype=float) - e_start
+    feed = np.array([mv.feed_mm_s for mv in moves], dtype=float)
+    if klipper:
+        feed = np.minimum(feed, np.array([q.velocity for q in snaps])[si])
+    is_arc = np.array([mv.arc is not None for mv in moves], dtype=bool)
+    d = end - start
+    total = np.sqrt((d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1]) + d[:, 2] * d[:, 2])
+    still = total <= 1e-9
+    eonly = ~is_arc & still & (np.abs(de_total) > 1e-12)
+    line = ~is_arc & ~still
+    # chords of the arcs, in the reference's code
+    arc_rows = {}
+    for mi in np.flatnonzero(is_arc):
+        q = snaps[si[mi]]
+        rows = _arc_rows(moves[mi], q, fw, klipper, float(feed[mi]))
+        if rows is None:
+            return _build_blocks_reference(program, profile)
+        arc_rows[int(mi)] = rows
+    count = (line | eonly).astype(np.int64)
+    for mi, rows in arc_rows.items():
+        count[mi] = len(rows)
+    rows_before = np.concatenate([[0], np.cumsum(count)])
+    n = int(rows_before[-1])
+    lead = 0.0
+    if n == 0:
+        for ev in events:
+            if ev.stop:
+                lead += ev.dwell_s
+        z = np.zeros(0)
+        return Blocks(np.zeros((0, 3)), np.zeros((0, 3)), z, z, z, z, z, z, np.zeros(0, bool), z,
+                      z, z, lead, klipper)
+    b_start = np.empty((n, 3))
+    b_end = np.empty((n, 3))
+    b_e0 = np.empty(n)
+    b_de = np.empty(n)
+    b_L = np.empty(n)
+    b_acc = np.empty(n)
+    b_peak = np.empty(n)
+    b_vcap = np.empty(n)
+    b_jd = np.empty(n)
+    b_eonly = np.zeros(n, bool)
+    b_jerk = np.full((n, 3), np.nan)  # NaN: junction deviation applies at this block
+
+    snap_jerk = np.array([[np.nan] * 3 if q.jerk is None else [q.jerk[k] for k in "xyz"]
+                          for q in snaps])
+    snap_jd = np.array([q.jd for q in snaps])
+    snap_mcr = np.array([q.min_cruise_ratio for q in snaps])
+    # Klipper's junction deviation from scv: the scalar part as the reference computes it
+    snap_scv_k = np.array([q.scv ** 2 * (math.sqrt(2) - 1) for q in snaps])
+
+    # straight moves: one block each
+    li = np.flatnonzero(line)
+    r = rows_before[li]
+    dl = d[li]
+    L = total[li]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = np.abs(dl) / L[:, None]
+        de = de_total[li] * L / total[li]
+        ue = np.abs(de) / L
+        a = np.where(de_total[li] > 0, snap_a_print[li], snap_a_travel[li])
+        v = feed[li]
+        for k in range(3):
+            big = u[:, k] > 1e-12
+            a = np.where(big, np.minimum(a, macc[li, k] / u[:, k]), a)
+            v = np.where(big, np.minimum(v, mfeed[li, k] / u[:, k]), v)
+        big = ue > 1e-12
+        a = np.where(big, np.minimum(a, macc[li, 3] / ue), a)
+        v = np.where(big, np.minimum(v, mfeed[li, 3] / ue), v)
+    b_start[r] = start[li]
+    b_end[r] = end[li]
+    b_e0[r] = e_start[li]
+    b_de[r] = de
+    b_L[r] = L
+    b_acc[r] = a
+    b_peak[r] = a * (1.0 - snap_mcr[si[li]]) if klipper else a
+    b_vcap[r] = v
+    b_jd[r] = snap_scv_k[si[li]] / a if klipper else snap_jd[si[li]]
+    b_jerk[r] = snap_jerk[si[li]]
+
+    # E-only moves: one block each, a stop on both sides
+    ei_ = np.flatnonzero(eonly)
+    r = rows_before[ei_]
+    a = np.minimum(np.array([q.accel_retract for q in snaps])[si[ei_]], macc[ei_, 3])
+    b_start[r] = start[ei_]
+    b_end[r] = start[ei_]
+    b_e0[r] = e_start[ei_]
+    b_de[r] = de_total[ei_]
+    b_L[r] = np.abs(de_total[ei_])
+    b_acc[r] = a
+    b_peak[r] = a
+    b_vcap[r] = np.minimum(feed[ei_], mfeed[ei_, 3])
+    b_jd[r] = snap_jd[si[ei_]]
+    b_eonly[r] = True
+    b_jerk[r] = snap_jerk[si[ei_]]
+
+    for mi, rows in arc_rows.items():
+        r0 = int(rows_before[mi])
+        for j, row in enumerate(rows):
+            b_start[r0 + j], b_end[r0 + j] = row[0], row[1]
+            b_e0[r0 + j], b_de[r0 + j], b_L[r0 + j] = row[2], row[3], row[4]
+            b_acc[r0 + j], b_peak[r0 + j], b_vcap[r0 + j], b_jd[r0 + j] = row[5:9]
+            if row[10] is not None:
+                b_jerk[r0 + j] = [row[10][k] for k in "xyz"]
+
+    # stops, in file order as the reference meets them: an event stops after the last block
+    # before its move (or adds to the lead-in); an E-only block stops the block before it
+    stop_after = np.zeros(n, bool)
+    dwell = np.zeros(n)
+    for ev in events:
+        if ev.stop:
+            k = int(rows_before[ev.move_index]) - 1
+            if k >= 0:
+                stop_after[k] = True
+                dwell[k] = dwell[k] + ev.dwell_s
+            else:
+                lead += ev.dwell_s
+    r = rows_before[ei_]
+    stop_after[r[r > 0] - 1] = True
+    stop_after[-1] = True
+    stop_after |= b_eonly
+    d = b_end - b_start
+    nrm = np.linalg.norm(d, axis=1, keepdims=True)
+    unit = np.where(nrm > 0, d / np.where(nrm > 0, nrm, 1), 0.0)
+    turn = np.einsum("ij,ij->i", unit[:-1], unit[1:])
+    turn = np.where(b_eonly[:-1] | b_eonly[1:], -1.0, turn)
+    # classic jerk where the next block has it: the highest speed at which no axis changes
+    # by more than its jerk
+    dv = np.abs(unit[1:] - unit[:-1])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        jv = np.where(dv > 1e-12, b_jerk[1:] / dv, np.inf).min(axis=1)
+    jerk_v = np.where(np.isnan(b_jerk[1:, 0]), np.inf, jv)
+    return Blocks(b_start, b_end, b_e0, b_de, b_L, b_acc, b_peak, b_vcap, stop_after, dwell,
+                  b_jd, turn, lead, klipper, jerk_v)
+
+
 def _plan(blocks: Blocks):
     n = blocks.length_mm.size
     # junction rule with the block's own deviation (Marlin: M205 J in force; Klipper: from scv)
@@ -334,9 +595,10 @@ def _plan(blocks: Blocks):
     return tr
 
 
-def estimate_time_s(program, profile) -> float:
-    """Print time as the firmware model executes the program (no sampling), s."""
-    blocks = build_blocks(program, profile)
+def estimate_time_s(program, profile, fast: bool = True) -> float:
+    """Print time as the firmware model executes the program (no sampling), s.
+    ``fast``: see :func:`build_blocks`."""
+    blocks = build_blocks(program, profile, fast)
     if blocks.length_mm.size == 0:
         return blocks.lead_s
     return _plan(blocks).duration_s

@@ -78,3 +78,20 @@ def plain_line(draw):
 def test_generated_lines_same_program(lines, ending, fw):
     data = ("G1 X1 Y1 F600" + ending + ending.join(lines) + ending).encode()
     _same(data, flavour=fw[0], g91_relative_e=fw[1])
+
+
+def test_new_move_is_the_dataclass_instance():
+    """The reader builds moves without the frozen dataclass's __init__ (for speed): the
+    instance is the one ``Move(...)`` gives — fields, equality, hash, repr, immutability."""
+    import dataclasses
+
+    from gcode_feedopt.gcode.reader import Arc, Move, _new_move
+
+    vals = (7, "G2", (1.0, 2.0, 0.2), (3.0, 2.0, 0.2), 0.5, 0.75, 30.0,
+            Arc(center_mm=(2.0, 2.0), cw=True, sweep_rad=-3.14159, radius_mm=1.0), "extrude", 3,
+            False, True, (0.0, 0.0, 0.0, -1.5), False, {"X": "3", "E": ".25"})
+    a, b = _new_move(*vals), Move(*vals)
+    assert a == b and hash(a) == hash(b) and repr(a) == repr(b)
+    assert vars(a) == vars(b) and a.words == b.words and a.de_mm == b.de_mm
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        a.line_no = 8
