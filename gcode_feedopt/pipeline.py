@@ -125,8 +125,11 @@ def optimize_file(in_path, out_path, profile, opts: Options) -> Report:
     # objects (gc_paused)
     with gc_paused():
         t0 = time.perf_counter()
+        cells = sched.info.get("cells")
         result = write(program, path, sched, profile, mode=opts.mode,
-                       accel_mm_s2=writer_accel(path, profile, fw_limits, opts.amax_mm_s2))
+                       accel_mm_s2=writer_accel(path, profile, fw_limits, opts.amax_mm_s2),
+                       cells=cells,
+                       settings=None if cells is None else firmware.accel_settings(program, profile))
         wall["write"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         fw = profile.firmware
@@ -171,7 +174,7 @@ def optimize_file(in_path, out_path, profile, opts: Options) -> Report:
         predicted_max_contour_error_mm=info.get("predicted_max_contour_error_mm"),
         predicted_p95_contour_error_mm=info.get("predicted_p95_contour_error_mm"),
         stage_wall_s={k: round(v, 4) for k, v in wall.items()},
-        extra={"input_time_same_limits_s": t_in,
+        extra={"input_time_same_limits_s": t_in, "accel_lines": result.accel_lines,
                **({"executed": executed} if executed is not None else {}),
                **{k: info[k] for k in ("optimizer", "window_status", "fallback_windows",
                                         "relaxed_windows", "relaxed_samples", "rounds",

@@ -252,6 +252,7 @@ def plan_offline(path, profile, method: str, *, tolerance_mm: float, stringency:
         "predicted_p95_contour_error_mm":
             float(np.quantile(res.motion_mm[on], 0.95)) if on.any() else 0.0,
         "predicted_bound_mm": res.bound_mm, "_predicted_xy_mm": res.mean_xy_mm,
+        "cells": res.cells,
         "vmax_mm_s": vmax, "amax_mm_s2": min(axis_a["x"], axis_a["y"])})
     return Schedule(ts_s=profile.ts_s, s_mm=res.s_mm, method=method, info=info)
 

@@ -8,9 +8,11 @@ module finds a plan of the same quality with whole-file vectorized passes instea
 1. **Grid.** Every segment is cut into cells of at most ``grid_mm`` (planning only: cells of
    one move meet straight on, so no junction rule applies between them). Each cell c has a
    scale r_c ∈ (0, 1]: its feed cap becomes r·v_cap, its acceleration r²·a, and the junction
-   speed at its ends r·v_j (with the smaller r of the two sides). That is a *local time
-   dilation*: the same path at 1/r of the speed, whose dynamic errors (∝ acceleration)
-   shrink as r². With r = 1 everywhere the plan is F exactly.
+   speed at its start r·v_j. That is a *local time dilation*: the same path at 1/r of the
+   speed, whose dynamic errors (∝ acceleration) shrink as r². With r = 1 everywhere the plan
+   is F exactly; with r < 1 it is what the firmware plans once the writer tells it the cell's
+   acceleration and junction rule (gcode.writer: M204/M205, SET_VELOCITY_LIMIT), so the
+   written file runs as planned.
 2. **Plan.** The firmware's own look-ahead (plan.trapezoid.forward_backward and trapezoids)
    on the scaled limits, per piece between exact stops (each starts and ends at rest and is
    sampled from its own start, as the window optimizer commits whole samples); the schedule
@@ -49,8 +51,8 @@ larger than the tolerance leaves room for), or even with their whole cause windo
 ``scale_min`` floor, are given up on, counted in ``info["relaxed_samples"]``, and their cells
 return to full speed (slowing them down does not help).
 
-The plan stays within F everywhere (every limit is F's limit times r ≤ 1), so the firmware
-runs the written G-code as planned where r = 1 and the writer splits moves where it is not.
+The plan stays within F everywhere (every limit is F's limit times r ≤ 1); ``cells`` of the
+result tell the writer where and how much it was slowed.
 """
 
 from __future__ import annotations
@@ -121,6 +123,9 @@ class SlowdownResult:
             chance bound (0 on unconstrained samples), mm.
         motion_mm: (K,) the part of the bound the motion causes (|μ_ε| or the overshoot
             excursion; the rest is Φ⁻¹(η)σ_ε), mm.
+        cells: the grid for the writer: ``s0_mm`` (M+1,) cell boundaries, ``parent`` (M,)
+            segment of each cell, ``scale`` (M,), ``accel_mm_s2`` and ``vcap_mm_s`` (M,) the
+            plan's acceleration and feed cap in each cell.
     """
 
     s_mm: np.ndarray
@@ -129,6 +134,7 @@ class SlowdownResult:
     mean_xy_mm: np.ndarray
     bound_mm: np.ndarray
     motion_mm: np.ndarray
+    cells: dict | None = None
 
 
 class PlanGrid:
@@ -198,15 +204,16 @@ class PlanGrid:
         L = self.length_mm[cells]
         vc = self.vcap_mm_s[cells] * r
         acc = self.accel_mm_s2[cells] * r * r
-        # junctions: F's limit times the smaller scale of the two sides, within both caps;
-        # the first junction of every piece is a stop (or the path's start): 0
+        # junctions: F's limit times the scale of the cell after it (the firmware's junction
+        # rule uses the settings in force for the move it plans: the writer's acceleration
+        # and jerk lines for that cell), within both caps; the first junction of every piece
+        # is a stop (or the path's start): 0
         m = cells.size
         vj = np.zeros(m + 1)
         inner = np.ones(m, bool)
         inner[first_c] = False
         j = np.flatnonzero(inner)
-        vj[j] = np.minimum(self.junction_mm_s[cells[j]] * np.minimum(r[j - 1], r[j]),
-                           np.minimum(vc[j - 1], vc[j]))
+        vj[j] = np.minimum(self.junction_mm_s[cells[j]] * r[j], np.minimum(vc[j - 1], vc[j]))
         v = forward_backward(vj, L, acc)
         tr = trapezoids(v, L, acc, vc, np.zeros(m), 0.0)
         motion = tr.motion_s
@@ -859,5 +866,8 @@ def plan_slowdown(path, limits: PlannerLimits, evaluator, *, ts_s: float,
         "scale_min_used": float(state.scale.min()) if state.scale.size else 1.0,
         "compute_s": time.perf_counter() - t_start,
     })
+    cells = {"s0_mm": grid.s0_mm, "parent": grid.parent, "scale": state.scale,
+             "accel_mm_s2": grid.accel_mm_s2 * state.scale * state.scale,
+             "vcap_mm_s": grid.vcap_mm_s * state.scale}
     return SlowdownResult(s_mm=s, scale=state.scale, info=info, mean_xy_mm=mean.T,
-                          bound_mm=b, motion_mm=out["mot"])
+                          bound_mm=b, motion_mm=out["mot"], cells=cells)

@@ -180,6 +180,31 @@ def move_limits(program, profile, fast: bool = True) -> MoveLimits:
     return MoveLimits(acc, macc, mfeed, jd, jerk, vel)
 
 
+@dataclass(frozen=True)
+class AccelSettings:
+    """The settings a writer changes to slow a stretch down and restores after it, in force
+    at every move (M moves): M204 P and T (Klipper: its one accel, both), classic jerk X/Y
+    (NaN where junction deviation applies; Marlin) and square_corner_velocity (Klipper)."""
+
+    flavour: str
+    accel_print_mm_s2: np.ndarray
+    accel_travel_mm_s2: np.ndarray
+    jerk_xy_mm_s: np.ndarray
+    scv_mm_s: np.ndarray
+
+
+def accel_settings(program, profile) -> AccelSettings:
+    """:class:`AccelSettings` of ``program`` (the profile's, then the file's own settings)."""
+    klipper = profile.firmware.flavour == "klipper"
+    snaps, si = _limit_snapshots(program, profile, klipper)
+    jerk = np.array([[np.nan] * 2 if q.jerk is None or klipper else [q.jerk["x"], q.jerk["y"]]
+                     for q in snaps]).reshape(-1, 2)
+    return AccelSettings(profile.firmware.flavour,
+                         np.array([q.accel_print for q in snaps])[si],
+                         np.array([q.accel_travel for q in snaps])[si], jerk[si],
+                         np.array([q.scv for q in snaps])[si])
+
+
 def _limit_snapshots(program, profile, klipper: bool):
     """The limits in force after each event (``snaps``: E+1, the first before any event) and,
     (M,) per move, the index of the snapshot in force at it (after every event read before

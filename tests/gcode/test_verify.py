@@ -15,7 +15,7 @@ from gcode_feedopt.errors import VerifyError
 from gcode_feedopt.gcode.path import build_path
 from gcode_feedopt.gcode.reader import read_program, split_lines
 from gcode_feedopt.gcode.verify import verify
-from gcode_feedopt.gcode.writer import T_IDENT, T_NEW, T_ORIG, T_RESTORE, write
+from gcode_feedopt.gcode.writer import T_ACCEL, T_IDENT, T_NEW, T_ORIG, T_RESTORE, write
 from gcode_feedopt.plan.kinematic import plan_kinematic, segment_accel
 
 from .helpers import PROFILE
@@ -142,6 +142,22 @@ def test_restore_line_with_motion_refused():
     lines[k] = b"G1 X5 F600\n"
     with pytest.raises(VerifyError):
         _verify(prog, _mutate(res, lines))
+
+
+@pytest.mark.parametrize("added", [b"G1 X5 F600\n", b"M104 S0\n", b"G28\n"])
+def test_acceleration_line_that_is_not_one_refused(added):
+    """A line we add around a slowed stretch may only set accelerations and jerk: one that
+    moves, heats or homes is a writer bug."""
+    prog, res = _write(ABS)
+    lines = split_lines(res.data)
+    k = _first(res, T_NEW)
+    lines.insert(k, added)
+    tags = list(res.tags)
+    tags.insert(k, (T_ACCEL, -1))
+    with pytest.raises(VerifyError):
+        _verify(prog, _mutate(res, lines, tags))
+    lines[k] = b"M204 P1000 T1000\n"
+    _verify(prog, _mutate(res, lines, tags))  # a real one passes
 
 
 def test_refusal_writes_nothing(tmp_path, monkeypatch):
