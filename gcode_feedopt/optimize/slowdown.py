@@ -8,7 +8,8 @@ module finds a plan of the same quality with whole-file vectorized passes instea
 1. **Grid.** Every segment is cut into cells of at most ``grid_mm`` (planning only: cells of
    one move meet straight on, so no junction rule applies between them). Each cell c has a
    scale r_c ∈ (0, 1]: its feed cap becomes r·v_cap, its acceleration r²·a, and the junction
-   speed at its start r·v_j. That is a *local time dilation*: the same path at 1/r of the
+   speeds at its ends r·v_j (the smaller r of the two sides; under classic jerk the r of the
+   cell after the junction, as the firmware plans it). That is a *local time dilation*: the same path at 1/r of the
    speed, whose dynamic errors (∝ acceleration) shrink as r². With r = 1 everywhere the plan
    is F exactly; with r < 1 it is what the firmware plans once the writer tells it the cell's
    acceleration and junction rule (gcode.writer: M204/M205, SET_VELOCITY_LIMIT), so the
@@ -146,6 +147,7 @@ class PlanGrid:
             start is the path's own, exactly).
         vcap_mm_s, accel_mm_s2: (M,) F's limits of each cell.
         junction_mm_s: (M+1,) F's junction limits (inf between the cells of one segment).
+        jerk_junction: (M+1,) bool, junctions F's classic jerk sets.
         fixed: (M,) bool, cells of lines the writer must keep (never scaled).
         piece_cell: (P+1,) first cell of each piece (pieces end at exact stops).
         piece_hold: (P,) samples held at rest after each piece (its dwell).
@@ -167,6 +169,10 @@ class PlanGrid:
         vj = np.full(self.parent.size + 1, np.inf)
         vj[first] = limits.junction_mm_s
         self.junction_mm_s = vj
+        jerk = np.zeros(self.parent.size + 1, bool)
+        if limits.jerk_junction is not None:
+            jerk[first] = limits.jerk_junction
+        self.jerk_junction = jerk
         self.fixed = np.asarray(path.fixed, bool)[self.parent]
         stop = np.asarray(path.stop_after, bool) | (np.asarray(path.dwell_after_s) > 0)
         stop[-1] = True
@@ -204,16 +210,19 @@ class PlanGrid:
         L = self.length_mm[cells]
         vc = self.vcap_mm_s[cells] * r
         acc = self.accel_mm_s2[cells] * r * r
-        # junctions: F's limit times the scale of the cell after it (the firmware's junction
-        # rule uses the settings in force for the move it plans: the writer's acceleration
-        # and jerk lines for that cell), within both caps; the first junction of every piece
-        # is a stop (or the path's start): 0
+        # junctions: F's limit times the smaller scale of the two sides (junction deviation,
+        # Klipper's square corner and centripetal rules take the smaller acceleration of the
+        # two moves), or the scale of the cell after it where classic jerk sets it (the
+        # firmware takes the jerk in force for the move it plans: the writer's M205 line for
+        # that cell), within both caps; the first junction of every piece is a stop (or the
+        # path's start): 0
         m = cells.size
         vj = np.zeros(m + 1)
         inner = np.ones(m, bool)
         inner[first_c] = False
         j = np.flatnonzero(inner)
-        vj[j] = np.minimum(self.junction_mm_s[cells[j]] * r[j], np.minimum(vc[j - 1], vc[j]))
+        rj = np.where(self.jerk_junction[cells[j]], r[j], np.minimum(r[j - 1], r[j]))
+        vj[j] = np.minimum(self.junction_mm_s[cells[j]] * rj, np.minimum(vc[j - 1], vc[j]))
         v = forward_backward(vj, L, acc)
         tr = trapezoids(v, L, acc, vc, np.zeros(m), 0.0)
         motion = tr.motion_s

@@ -91,11 +91,14 @@ class PlannerLimits:
         accel_mm_s2: (N,) acceleration along each segment, mm/s².
         junction_mm_s: (N+1,) highest speed at each junction (0 at both ends and at exact
             stops), before the look-ahead lowers them to what the accelerations allow, mm/s.
+        jerk_junction: (N+1,) bool, junctions set by classic jerk (the settings of the move
+            after the junction alone), or None: none is.
     """
 
     vcap_mm_s: np.ndarray
     accel_mm_s2: np.ndarray
     junction_mm_s: np.ndarray
+    jerk_junction: np.ndarray | None = None
 
 
 def planner_limits(path: Path, *, vmax_mm_s: float, axis_vmax_mm_s: dict,
@@ -135,7 +138,11 @@ def planner_limits(path: Path, *, vmax_mm_s: float, axis_vmax_mm_s: dict,
         vj[1:n] = junction_limits(path.junction_cos(), acc, jd[1:],
                                   path.length_mm if centripetal else None, jerk_v, vcap,
                                   path.stop_after, None if centripetal else path.length_mm)
-    return PlannerLimits(vcap_mm_s=vcap, accel_mm_s2=acc, junction_mm_s=vj)
+    jerk_j = None
+    if jerk_v is not None and n:
+        jerk_j = np.zeros(n + 1, bool)
+        jerk_j[1:n] = np.isfinite(jerk_v)
+    return PlannerLimits(vcap_mm_s=vcap, accel_mm_s2=acc, junction_mm_s=vj, jerk_junction=jerk_j)
 
 
 def plan_trapezoids(path: Path, *, vmax_mm_s: float, axis_vmax_mm_s: dict,

@@ -644,4 +644,5 @@ def execute(program, profile) -> Trajectory:
     u = np.clip(np.where(L > 0, (s - s0[i]) / np.where(L > 0, L, 1), 0.0), 0.0, 1.0)
     pos = blocks.start_mm[i] + (blocks.end_mm[i] - blocks.start_mm[i]) * u[:, None]
     e = blocks.e0_mm[i] + blocks.de_mm[i] * u
-    return Trajectory(ts_s=ts, pos_mm=pos, e_mm=e)
+    xy = np.any(blocks.end_mm[:, :2] != blocks.start_mm[:, :2], axis=1)
+    return Trajectory(ts_s=ts, pos_mm=pos, e_mm=e, in_extrusion=(xy & (blocks.de_mm > 0))[i])

@@ -143,11 +143,16 @@ def contour_error_mm(commanded_mm: np.ndarray, actual_mm: np.ndarray, ts_s: floa
 
 def extrusion_mask(trajectory: Trajectory) -> np.ndarray:
     """Shape (K,) bool. Samples inside an extruding XY move: the XY position and E both advance
-    over the interval before or after the sample."""
+    over the interval before or after the sample (and, where the trajectory knows its moves,
+    one end of that interval lies in an extruding XY move: a travel that stops within the
+    same Ts as an E-only prime starts is not extruding)."""
     pos, e = trajectory.pos_mm, trajectory.e_mm
     K = pos.shape[0]
     step = (np.any(np.diff(pos[:, :2], axis=0) != 0, axis=1)
             & (np.diff(e) > EXTRUDE_EPS_MM))
+    blk = getattr(trajectory, "in_extrusion", None)
+    if blk is not None:
+        step &= blk[:-1] | blk[1:]
     mask = np.zeros(K, dtype=bool)
     mask[:-1] |= step
     mask[1:] |= step

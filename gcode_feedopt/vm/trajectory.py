@@ -15,11 +15,16 @@ class Trajectory:
         ts_s: sample period, s.
         pos_mm: np.ndarray, shape (K, 3). X, Y, Z position at ``t_k = k * ts_s``, mm.
         e_mm: np.ndarray, shape (K,). Absolute filament position, mm.
+        in_extrusion: np.ndarray, shape (K,) bool, or None. Where the source knows its moves
+            (the firmware model's blocks): the sample lies in an XY move that extrudes. It
+            tells an interval in which a travel stops and an E-only prime starts (both
+            advance within one Ts) from one that extrudes along the path.
     """
 
     ts_s: float
     pos_mm: np.ndarray
     e_mm: np.ndarray
+    in_extrusion: np.ndarray | None = None
 
     def __post_init__(self):
         if self.pos_mm.ndim != 2 or self.pos_mm.shape[1] != 3:

@@ -86,6 +86,16 @@ def test_execute_ends_at_last_point_with_e_and_stops():
     still = np.all(np.abs(np.diff(tr.pos_mm, axis=0)) < 1e-12, axis=1) & (np.diff(tr.e_mm) == 0)
     runs = np.diff(np.flatnonzero(np.diff(np.concatenate([[0], still.astype(int), [0]]))))[::2]
     assert runs.max() * tr.ts_s >= 0.2 - 2 * tr.ts_s
+    # the samples know their moves: in the extruding line and arc, not in the retraction,
+    # the dwell or before the first move
+    ext = tr.in_extrusion
+    assert ext.shape == (tr.n_samples,)
+    assert ext[0] == (tr.pos_mm[1, 0] > 0)
+    mid_line = np.flatnonzero((tr.pos_mm[:, 0] > 1) & (tr.pos_mm[:, 0] < 19))
+    assert ext[mid_line].all()
+    retracting = np.flatnonzero(np.diff(tr.e_mm) < 0)
+    assert retracting.size and not ext[retracting[1:]].any()  # the retraction at X20
+    assert ext[tr.pos_mm[:, 0] > 20.5].all()
     # arcs are split into chords on the circle
     assert np.all(np.abs(np.hypot(tr.pos_mm[tr.pos_mm[:, 0] > 20.5, 0] - 30,
                                   tr.pos_mm[tr.pos_mm[:, 0] > 20.5, 1]) - 10) < 0.02)

@@ -90,6 +90,23 @@ def test_extrusion_mask_skips_travel_and_retraction():
     assert res.n_evaluated == 11 and res.evaluated_on == "extrusion"
 
 
+def test_travel_stopping_as_a_prime_starts_is_not_extrusion():
+    # a travel decelerates and stops within interval 9→10, in which an E-only prime also
+    # starts; then the extrusion 13..22. Both XY and E advance over 9→10, but neither end of it
+    # lies in an extruding move: the moves tell it apart (the firmware model's blocks)
+    x = np.concatenate([np.linspace(0, 8.999, 10), np.full(3, 9.0), np.linspace(9.5, 14, 10)])
+    e = np.concatenate([np.zeros(10), [0.2, 0.4, 0.5], 0.5 + 0.05 * np.arange(1, 11)])
+    pos = np.column_stack([x, np.zeros_like(x), np.zeros_like(x)])
+    blk = np.zeros(x.size, bool)
+    blk[13:] = True  # samples inside the extruding move
+    plain = m.extrusion_mask(traj(pos, e))
+    assert plain[9] and plain[10]  # XY and E alone call the stop an extrusion
+    told = m.extrusion_mask(Trajectory(ts_s=TS, pos_mm=pos, e_mm=e, in_extrusion=blk))
+    expect = np.zeros(x.size, bool)
+    expect[12:] = True
+    np.testing.assert_array_equal(told, expect)
+
+
 def test_no_extrusion_falls_back_to_all_samples():
     cmd = square()
     res = m.evaluate(traj(cmd), cmd, 0.1)
