@@ -302,17 +302,7 @@ def _pieces(u_pts: np.ndarray, t_pts: np.ndarray, L: float, min_dt: float, sampl
         t_piece0 = t_pts[j]
         if not end:
             vmin = vmax = v[j]
-    if not out:
-        return [(1.0, L / max(t_pts[-1] - t_pts[0], 1e-9))]
-    # a last piece shorter than min_dt is merged into the one before it
-    if len(out) > 1:
-        u_a = out[-3][0] if len(out) > 2 else 0.0
-        u_b = out[-2][0]
-        if t_pts[-1] - _t_of(u_pts, t_pts, u_b) < min_dt:
-            t_a = _t_of(u_pts, t_pts, u_a)
-            out = out[:-2] + [(1.0, (1.0 - u_a) * L / max(t_pts[-1] - t_a, 1e-9))]
-    out[-1] = (1.0, out[-1][1])
-    return out
+    return _close_pieces(out, u_pts, t_pts, L, min_dt)
 
 
 def _split_pieces(u_pts: np.ndarray, t_pts: np.ndarray, L: float, min_dt: float):
@@ -348,6 +338,12 @@ def _split_pieces(u_pts: np.ndarray, t_pts: np.ndarray, L: float, min_dt: float)
         t_piece0 = tl[j]
         if not end:
             vmin = vmax = v[j]
+    return _close_pieces(out, u_pts, t_pts, L, min_dt)
+
+
+def _close_pieces(out, u_pts, t_pts, L, min_dt):
+    """The end of a greedy split: one piece at the average speed if none closed, a last piece
+    shorter than min_dt merged into the one before it, and the last piece ending at u = 1."""
     if not out:
         return [(1.0, L / max(t_pts[-1] - t_pts[0], 1e-9))]
     if len(out) > 1:
