@@ -109,6 +109,9 @@ class SlowdownSettings:
     #: of F than ``min_parallel_samples`` are planned in one process
     workers: int | None = None
     min_parallel_samples: int = 200_000
+    #: samples of F per worker group at most: a group's rounds cost its own length each
+    #: (whole-group passes), so bounded groups keep the cost linear in the file's length
+    group_samples: int = 200_000
 
 
 @dataclass
@@ -787,12 +790,15 @@ def _optimize_group(p0: int, p1: int):
     return a, b, state.scale[a:b], relaxed[a:b], stats, state.export()
 
 
-def _groups(grid: PlanGrid, n_groups: int, ts_s: float):
-    """Contiguous piece ranges with about equal samples of F each, and F's last samples
-    (the twin's memory) before every range but the first."""
+def _groups(grid: PlanGrid, workers: int, group_samples: int):
+    """Contiguous piece ranges with about equal samples of F each (a multiple of ``workers``
+    of them, enough that none holds more than about ``group_samples``), and F's plan of
+    every piece."""
     ss, _, _, _ = grid.plan(np.ones(grid.n_cells), np.arange(grid.n_pieces))
     sizes = np.array([x.size for x in ss]) + grid.piece_hold
     cum = np.cumsum(sizes)
+    # a multiple of the workers, so none waits idle at the end (groups of equal length)
+    n_groups = workers * int(np.ceil(cum[-1] / max(workers * group_samples, 1)))
     cuts = [0]
     for g in range(1, n_groups):
         i = int(np.searchsorted(cum, cum[-1] * g / n_groups)) + 1
@@ -819,7 +825,7 @@ def plan_slowdown(path, limits: PlannerLimits, evaluator, *, ts_s: float,
     info = {"workers": 1}
     group_stats = []
     if workers > 1 and evaluator.memory is not None and grid.n_pieces > 1:
-        groups, ss, total = _groups(grid, workers, ts_s)
+        groups, ss, total = _groups(grid, workers, st.group_samples)
         if total >= st.min_parallel_samples and len(groups) > 1:
             mem = evaluator.memory
             history = {}
@@ -831,7 +837,7 @@ def plan_slowdown(path, limits: PlannerLimits, evaluator, *, ts_s: float,
             _CTX = {"grid": grid, "settings": st, "history": history, "path": path,
                     "evaluator": evaluator}
             try:
-                with ProcessPoolExecutor(max_workers=len(groups),
+                with ProcessPoolExecutor(max_workers=min(workers, len(groups)),
                                          mp_context=mp.get_context("fork")) as pool:
                     parts = list(pool.map(_optimize_group, *zip(*groups)))
             finally:
@@ -840,7 +846,9 @@ def plan_slowdown(path, limits: PlannerLimits, evaluator, *, ts_s: float,
                 scale[a:b] = sc
                 relaxed[a:b] = rl
                 group_stats.append(stt)
-            info["workers"] = len(groups)
+            info["workers"] = min(workers, len(groups))
+            info["groups"] = len(groups)
+            info["groups_s"] = time.perf_counter() - t_start
     round_history = max(1, int(round(st.round_history_s / ts_s)))
     if group_stats:
         # the groups' plans as they are; only what follows a group boundary remembers a
@@ -857,6 +865,7 @@ def plan_slowdown(path, limits: PlannerLimits, evaluator, *, ts_s: float,
         del parts
     else:
         state = _State(path, grid, evaluator, scale, round_history=round_history)
+    t_merge = time.perf_counter()
     stats = _optimize(state, st, relaxed, grow=not group_stats)
     state.invalidate_approx()  # no-op unless the check budget ran out: report exact values
     s, out, mean, _ = state.evaluate(exact=True)
@@ -874,6 +883,7 @@ def plan_slowdown(path, limits: PlannerLimits, evaluator, *, ts_s: float,
                                         max(float(np.sum(cell_len)), 1e-12)),
         "scale_min_used": float(state.scale.min()) if state.scale.size else 1.0,
         "compute_s": time.perf_counter() - t_start,
+        "settle_s": time.perf_counter() - t_merge,
     })
     cells = {"s0_mm": grid.s0_mm, "parent": grid.parent, "scale": state.scale,
              "accel_mm_s2": grid.accel_mm_s2 * state.scale * state.scale,

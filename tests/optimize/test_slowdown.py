@@ -182,6 +182,14 @@ def test_worker_groups_give_a_verified_plan_like_one_process(ender, benchy):
     assert two.info["workers"] == 2
     assert two.bound_mm.max() <= 0.1 + 1e-12
     assert abs(two.s_mm.size - one.s_mm.size) <= 0.005 * one.s_mm.size
+    # more groups than workers (bounded groups keep the cost linear in the file's length):
+    # the same verified plan, within the same 0.5 %
+    many = plan_slowdown(path, lim, _twin_evaluator(ender, path), ts_s=ender.ts_s,
+                         settings=SlowdownSettings(workers=2, min_parallel_samples=0,
+                                                   group_samples=one.s_mm.size // 8))
+    assert many.info["workers"] == 2 and many.info["groups"] >= 4
+    assert many.bound_mm.max() <= 0.1 + 1e-12
+    assert abs(many.s_mm.size - one.s_mm.size) <= 0.005 * one.s_mm.size
 
 
 def _butterfly(ender, n_lines=None):
