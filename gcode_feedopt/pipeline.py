@@ -45,11 +45,14 @@ def read_for(path, profile):
                      e_feed_mm_s=fw.max_feed_mm_s["e"])
 
 
-def path_for(program, profile):
-    fw = profile.firmware
-    return build_path(program, e_feed_cap_mm_s=min(fw.max_feed_mm_s["e"],
-                                                   profile.limits.axis_vmax_mm_s["e"]),
-                      e_accel_mm_s2=min(fw.max_accel_mm_s2["e"], profile.limits.axis_amax_mm_s2["e"]))
+def path_for(program, profile, fw_limits=None):
+    """The Path of a program. E-only moves (retractions, primes) are not re-timed: they last
+    what the firmware gives them (``fw_limits``: firmware.move_limits of the program, found
+    when not given), so the plan's time is the firmware's."""
+    if fw_limits is None:
+        fw_limits = firmware.move_limits(program, profile)
+    return build_path(program, e_feed_cap_mm_s=fw_limits.e_feed_mm_s,
+                      e_accel_mm_s2=fw_limits.e_accel_mm_s2)
 
 
 def plan(path, profile, opts: Options, fw_limits=None):
@@ -110,13 +113,13 @@ def optimize_file(in_path, out_path, profile, opts: Options) -> Report:
             f"{in_path}:{program.processed_line + 1}: already processed by gcode-feedopt; "
             "pass --force to process it again (re-slice for the best result)")
     t0 = time.perf_counter()
+    fw_limits = firmware.move_limits(program, profile)
     with gc_paused():
-        path = path_for(program, profile)
+        path = path_for(program, profile, fw_limits)
     if path.n_segments == 0:
         raise GCodeError(f"{in_path}: no move travels in X, Y or Z; nothing to re-time")
     wall["path"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    fw_limits = firmware.move_limits(program, profile)
     sched = plan(path, profile, opts, fw_limits)
     t_in = input_time_s(path, profile, opts, fw_limits)
     wall["plan"] = time.perf_counter() - t0

@@ -149,16 +149,19 @@ class Path:
         return np.einsum("ij,ij->i", t_end[:-1], t_beg[1:])
 
 
-def build_path(program: Program, *, e_feed_cap_mm_s: float = 25.0,
-               e_accel_mm_s2: float = 5000.0) -> Path:
+def build_path(program: Program, *, e_feed_cap_mm_s=25.0, e_accel_mm_s2=5000.0) -> Path:
     """Turn a Program into a Path.
 
     Args:
         program: the parsed file.
-        e_feed_cap_mm_s: the firmware's maximum extruder speed; an E-only move runs at the
-            lower of its F and this.
-        e_accel_mm_s2: extruder acceleration, used for the duration of E-only moves.
+        e_feed_cap_mm_s: the firmware's maximum extruder speed, one for the file or (M,) one per
+            move (vm.firmware.MoveLimits.e_feed_mm_s); an E-only move runs at the lower of its F
+            and this.
+        e_accel_mm_s2: the acceleration of E-only moves, one or (M,) per move
+            (MoveLimits.e_accel_mm_s2), used for their duration.
     """
+    e_caps = np.broadcast_to(np.asarray(e_feed_cap_mm_s, float), (len(program.moves),))
+    e_accs = np.broadcast_to(np.asarray(e_accel_mm_s2, float), (len(program.moves),))
     moves = program.moves
     seg_moves = []
     dwell_after: dict[int, float] = {}
@@ -174,13 +177,14 @@ def build_path(program: Program, *, e_feed_cap_mm_s: float = 25.0,
         else:
             dwell_before += dwell
 
-    def e_move_time(de: float, feed: float) -> float:
-        v = min(feed, e_feed_cap_mm_s) if feed > 0 else e_feed_cap_mm_s
+    def e_move_time(de: float, feed: float, mi: int) -> float:
+        cap, acc = float(e_caps[mi]), float(e_accs[mi])
+        v = min(feed, cap) if feed > 0 else cap
         d = abs(de)
         # trapezoid from rest to rest
-        if d * e_accel_mm_s2 >= v * v:
-            return d / v + v / e_accel_mm_s2
-        return 2.0 * np.sqrt(d / e_accel_mm_s2)
+        if d * acc >= v * v:
+            return d / v + v / acc
+        return 2.0 * np.sqrt(d / acc)
 
     ev_iter = iter(program.events)
     ev = next(ev_iter, None)
@@ -191,7 +195,7 @@ def build_path(program: Program, *, e_feed_cap_mm_s: float = 25.0,
             ev = next(ev_iter, None)
         if mv.xyz_length_mm <= MIN_SEGMENT_MM:
             if abs(mv.de_mm) > 0:
-                add_stop(e_move_time(mv.de_mm, mv.feed_mm_s))
+                add_stop(e_move_time(mv.de_mm, mv.feed_mm_s, mi))
             continue
         seg_moves.append(mi)
     while ev is not None:

@@ -578,35 +578,85 @@ class _AccelState:
         return out
 
 
+#: a planned segment is written as one line at its peak speed when the plan's acceleration is
+#: the firmware's within this fraction (slow-down cells scaled by r ≥ SCALE_OVERRIDE_BELOW)
+PEAK_ACCEL_MATCH = 0.005
+
+
+def plan_peaks(schedule: Schedule, accel_mm_s2: np.ndarray | None, n: int) -> np.ndarray | None:
+    """(N,) the peak speed of every segment the plan made one firmware trapezoid at the
+    acceleration the firmware will use (``accel_mm_s2``) between junctions that F does not
+    set (plan.kinematic.segment_plan ``exact``), NaN elsewhere; None when the plan does not
+    say (``schedule.info["segment_plan"]``: kinematic and slow-down plans do).
+
+    One line with F = that peak is what the firmware plans: the same entry and exit junctions
+    (its look-ahead is the plan's), the same acceleration and the same top speed. Read from the
+    samples instead, the peak is the fastest sample interval's mean speed, which is lower (by
+    up to a·Ts/2 where the segment peaks between samples), and a short segment that starts or
+    ends near rest fails the speed-band check of :func:`_firmware_band` and is split into a
+    staircase of lines: both make the written file slower than the plan."""
+    sp = schedule.info.get("segment_plan")
+    if sp is None or accel_mm_s2 is None:
+        return None
+    peak = np.asarray(sp["peak_mm_s"], float)
+    acc = np.asarray(sp["accel_mm_s2"], float)
+    fw = np.asarray(accel_mm_s2, float)
+    if peak.shape != (n,) or fw.shape != (n,):
+        return None
+    ok = ((np.abs(acc - fw) <= PEAK_ACCEL_MATCH * fw) & (peak > 0) & np.isfinite(peak)
+          & np.asarray(sp["exact"], bool))
+    return np.where(ok, peak, np.nan)
+
+
 def _cell_runs(cells: dict, k: int, lo: float, hi: float):
     """Runs of equal (acceleration, scale) among the planning cells of segment k:
-    list of (s_start, s_end, key) with key None where the cells are not slowed, and the feed
-    cap of each run (mm/s)."""
+    list of (s_start, s_end, key) with key None where the cells are not slowed; the feed cap
+    of each run (mm/s); and each run's peak speed in the plan (mm/s; None when ``cells`` has no
+    ``vpeak_mm_s`` or classic jerk sets a junction at either end of the segment)."""
     c0, c1 = cells["range"][k], cells["range"][k + 1]
-    runs, vcap = [], []
+    peaks = cells.get("vpeak_mm_s")
+    jerk = cells.get("jerk_junction")
+    if jerk is not None and (jerk[c0] or jerk[c1]):
+        peaks = None  # classic jerk at an end: the junction depends on F (plan_peaks)
+    runs, vcap, vpk = [], [], []
     for c in range(c0, c1):
         r = float(cells["scale"][c])
         key = None if r >= SCALE_OVERRIDE_BELOW else (math.floor(float(cells["accel_mm_s2"][c])), r)
         a, b = float(cells["s0_mm"][c]), float(cells["s0_mm"][c + 1])
         vc = float(cells["vcap_mm_s"][c])
+        pk = math.inf if peaks is None else float(peaks[c])
         if runs and (runs[-1][2] == key or (key is not None and runs[-1][2] is not None
                                             and runs[-1][2][0] == key[0])):
             runs[-1] = (runs[-1][0], b, runs[-1][2])
             vcap[-1] = max(vcap[-1], vc)
+            vpk[-1] = max(vpk[-1], pk)
         else:
             runs.append((a, b, key))
             vcap.append(vc)
+            vpk.append(pk)
     if not runs:
-        return [(lo, hi, None)], [math.inf]
+        return [(lo, hi, None)], [math.inf], None
     runs[0] = (lo, runs[0][1], runs[0][2])
     runs[-1] = (runs[-1][0], hi, runs[-1][2])
-    return runs, vcap
+    return runs, vcap, (None if peaks is None else vpk)
 
 
-def _run_pieces(s, ts, runs, lo, L, ta, tb, min_dt, accel_default, vcap):
-    """Pieces (u_end over the whole segment, speed) of a segment cut at its cell runs, each
-    run split by :func:`_pieces` with the acceleration the firmware will use on it and its
-    speeds kept within ``vcap`` (per run, mm/s); and the index of each run's first piece."""
+def _run_pieces(s, ts, runs, lo, L, ta, tb, min_dt, accel_default, vcap, vpk=None):
+    """Pieces (u_end over the whole segment, speed) of a segment cut at its cell runs, and the
+    index of each run's first piece.
+
+    With the plan's peak speed of every run (``vpk``): one piece per run at that speed. Within
+    a run the acceleration is one and cells of one move meet without a junction rule, so the
+    plan there is one firmware trapezoid (from the junction speed before the run to the one
+    after it, at the run's acceleration, capped at its peak): one line with F = the peak and
+    the run's acceleration is what the firmware plans. Without: each run split by
+    :func:`_pieces` from the sampled schedule with the acceleration the firmware will use on
+    it and its speeds kept within ``vcap`` (per run, mm/s)."""
+    if vpk is not None:
+        first = list(range(len(runs)))
+        pieces = [((sb - lo) / L, min(p, c)) for (_, sb, _), p, c in zip(runs, vpk, vcap)]
+        pieces[-1] = (1.0, pieces[-1][1])
+        return pieces, first
     pieces, first = [], []
     for n, (sa, sb, key) in enumerate(runs):
         j0 = int(np.searchsorted(s, sa, side="right"))
@@ -680,7 +730,14 @@ def write(program: Program, path: Path, schedule: Schedule, profile, *, mode: st
     t_at_line = (np.where(k_next < t_start.size, t_start[np.minimum(k_next, t_start.size - 1)],
                           total_s) if t_start.size else np.full(k_next.size, total_s)).tolist()
     one_speed = (single_piece_speeds(s, ts, path.s0_mm, t_start, t_end, accel_mm_s2, sampled)
-                 .tolist() if fast else None)
+                 if fast else None)
+    peaks = None if sampled else plan_peaks(schedule, accel_mm_s2, path.n_segments)
+    if one_speed is not None:
+        if peaks is not None:
+            one_speed = np.where(np.isnan(peaks), one_speed, peaks)
+        one_speed = one_speed.tolist()
+    if peaks is not None:
+        peaks = peaks.tolist()
     acc_state = None
     slowed = None
     if cells is not None and settings is not None and not sampled:
@@ -734,10 +791,10 @@ def write(program: Program, path: Path, schedule: Schedule, profile, *, mode: st
             retime = k is not None and not mv.fixed
             if retime and slowed is not None and slowed[k]:
                 lo, hi = float(path.s0_mm[k]), float(path.s0_mm[k + 1])
-                runs, vcap = _cell_runs(cells, k, lo, hi)
+                runs, vcap, vpk = _cell_runs(cells, k, lo, hi)
                 acc_k = 0.0 if accel_mm_s2 is None else float(accel_mm_s2[k])
                 pieces, first = _run_pieces(s, ts, runs, lo, hi - lo, float(t_start[k]),
-                                            float(t_end[k]), min_dt, acc_k, vcap)
+                                            float(t_end[k]), min_dt, acc_k, vcap, vpk)
                 semi = raw.find(b";")
                 comment = raw[semi:].rstrip(b"\r\n") if semi >= 0 else b""
                 ending = _ending(raw) or first_ending
@@ -792,7 +849,10 @@ def write(program: Program, path: Path, schedule: Schedule, profile, *, mode: st
                     lines = emitter.split_lines(mv, pieces, ending, comment)
                 else:
                     acc_k = 0.0 if accel_mm_s2 is None else float(accel_mm_s2[k])
-                    pieces = _pieces(u_pts, t_pts, L, min_dt, sampled, acc_k)
+                    if peaks is not None and not math.isnan(peaks[k]):
+                        pieces = [(1.0, peaks[k])]
+                    else:
+                        pieces = _pieces(u_pts, t_pts, L, min_dt, sampled, acc_k)
                     lines = emitter.pieces_lines(mv, pieces, ending, comment)
                 out.extend(lines)
                 tags.extend([(T_NEW, mi)] * len(lines))

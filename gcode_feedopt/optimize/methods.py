@@ -252,9 +252,21 @@ def plan_offline(path, profile, method: str, *, tolerance_mm: float, stringency:
         "predicted_p95_contour_error_mm":
             float(np.quantile(res.motion_mm[on], 0.95)) if on.any() else 0.0,
         "predicted_bound_mm": res.bound_mm, "_predicted_xy_mm": res.mean_xy_mm,
-        "cells": res.cells,
+        "cells": res.cells, "segment_plan": _segment_plan(res.cells, path.n_segments),
         "vmax_mm_s": vmax, "amax_mm_s2": min(axis_a["x"], axis_a["y"])})
     return Schedule(ts_s=profile.ts_s, s_mm=res.s_mm, method=method, info=info)
+
+
+def _segment_plan(cells: dict, n_segments: int) -> dict:
+    """Each segment's peak speed and acceleration in a slow-down plan (the writer's one line
+    per unslowed segment: its cells share one acceleration and meet without a junction rule,
+    so the segment is one trapezoid; slowed segments are written from the cells)."""
+    from ..plan.kinematic import segment_plan
+
+    first = np.searchsorted(cells["parent"], np.arange(n_segments + 1))
+    return segment_plan(np.maximum.reduceat(cells["vpeak_mm_s"], first[:-1]),
+                        np.minimum.reduceat(cells["accel_mm_s2"], first[:-1]),
+                        np.asarray(cells["jerk_junction"])[first])
 
 
 def plan_mpc(path, profile, predictor, *, method, tolerance_mm, stringency, vmax_mm_s=None,

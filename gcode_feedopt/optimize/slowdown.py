@@ -808,6 +808,20 @@ def _groups(grid: PlanGrid, workers: int, group_samples: int):
     return list(zip(cuts[:-1], cuts[1:])), ss, int(cum[-1])
 
 
+def _cell_peaks(grid: PlanGrid, state: _State) -> np.ndarray:
+    """(M,) the plan's highest speed in every cell, mm/s: its trapezoid's peak
+    (plan.trapezoid.trapezoids) from the cell's entry speed, the next cell's (0 after a
+    piece's last cell: pieces end at rest), and its scaled acceleration and feed cap. A run of
+    cells the writer gives one acceleration is one firmware trapezoid, and this is its F."""
+    v0 = np.concatenate(state.v0)
+    v1 = np.append(v0[1:], 0.0)
+    v1[grid.piece_cell[1:] - 1] = 0.0
+    r = state.scale
+    a = grid.accel_mm_s2 * r * r
+    peak = np.sqrt(np.maximum((2.0 * a * grid.length_mm + v0 * v0 + v1 * v1) / 2.0, 0.0))
+    return np.maximum(np.minimum(grid.vcap_mm_s * r, peak), np.maximum(v0, v1))
+
+
 def plan_slowdown(path, limits: PlannerLimits, evaluator, *, ts_s: float,
                   settings: SlowdownSettings | None = None) -> SlowdownResult:
     """Slow the firmware's plan down locally until the evaluator's chance bound holds on
@@ -887,6 +901,7 @@ def plan_slowdown(path, limits: PlannerLimits, evaluator, *, ts_s: float,
     })
     cells = {"s0_mm": grid.s0_mm, "parent": grid.parent, "scale": state.scale,
              "accel_mm_s2": grid.accel_mm_s2 * state.scale * state.scale,
-             "vcap_mm_s": grid.vcap_mm_s * state.scale}
+             "vcap_mm_s": grid.vcap_mm_s * state.scale,
+             "vpeak_mm_s": _cell_peaks(grid, state), "jerk_junction": grid.jerk_junction}
     return SlowdownResult(s_mm=s, scale=state.scale, info=info, mean_xy_mm=mean.T,
                           bound_mm=b, motion_mm=out["mot"], cells=cells)

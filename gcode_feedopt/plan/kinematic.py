@@ -147,15 +147,32 @@ def planner_limits(path: Path, *, vmax_mm_s: float, axis_vmax_mm_s: dict,
 
 def plan_trapezoids(path: Path, *, vmax_mm_s: float, axis_vmax_mm_s: dict,
                     axis_amax_mm_s2: dict, firmware, use_slicer_feed: bool = False,
-                    feed_scale: float = 1.0, fw_limits=None) -> Trapezoids:
-    """Look-ahead trapezoid plan of the whole path under :func:`planner_limits`."""
+                    feed_scale: float = 1.0, fw_limits=None, with_limits: bool = False):
+    """Look-ahead trapezoid plan of the whole path under :func:`planner_limits` (and those
+    limits, ``with_limits``)."""
     lim = planner_limits(path, vmax_mm_s=vmax_mm_s, axis_vmax_mm_s=axis_vmax_mm_s,
                          axis_amax_mm_s2=axis_amax_mm_s2, firmware=firmware,
                          use_slicer_feed=use_slicer_feed, feed_scale=feed_scale,
                          fw_limits=fw_limits)
     vj = forward_backward(lim.junction_mm_s, path.length_mm, lim.accel_mm_s2)
-    return trapezoids(vj, path.length_mm, lim.accel_mm_s2, lim.vcap_mm_s, path.dwell_after_s,
-                      path.dwell_before_s)
+    tr = trapezoids(vj, path.length_mm, lim.accel_mm_s2, lim.vcap_mm_s, path.dwell_after_s,
+                    path.dwell_before_s)
+    return (tr, lim) if with_limits else tr
+
+
+def segment_plan(peak_mm_s: np.ndarray, accel_mm_s2: np.ndarray,
+                 jerk_junction: np.ndarray | None) -> dict:
+    """What the writer needs to write a planned segment as one line at its peak speed
+    (gcode.writer.plan_peaks): the peak and acceleration of every segment's trapezoid, and
+    ``exact`` (N,): the firmware's junction speeds at both ends do not depend on F. Classic
+    jerk's do (Marlin limits the junction by the jerk of the two moves at their nominal
+    speeds), so a line at the peak instead of the plan's cap may cross such a junction faster
+    than planned."""
+    n = peak_mm_s.size
+    jerk = (np.zeros(n + 1, bool) if jerk_junction is None
+            else np.asarray(jerk_junction, bool))
+    return {"peak_mm_s": peak_mm_s, "accel_mm_s2": accel_mm_s2,
+            "exact": ~(jerk[:-1] | jerk[1:])}
 
 
 def effective_limits(profile, vmax_mm_s: float | None = None, amax_mm_s2: float | None = None):
@@ -198,16 +215,20 @@ def plan_kinematic(path: Path, profile, *, use_slicer_feed: bool = False,
 
     Returns:
         Schedule with ``info``: ``trapezoids`` (the phase plan), ``segment_start_s`` and
-        ``segment_end_s`` (N,) motion start/end times.
+        ``segment_end_s`` (N,) motion start/end times, ``segment_plan`` (every segment is one
+        trapezoid: its peak speed and acceleration, for the writer).
     """
     vmax, axis_v, axis_a = effective_limits(profile, vmax_mm_s, amax_mm_s2)
     amax = axis_a["x"]
     tr = plan_trapezoids(path, vmax_mm_s=vmax, axis_vmax_mm_s=axis_v, axis_amax_mm_s2=axis_a,
                          firmware=profile.firmware, use_slicer_feed=use_slicer_feed,
-                         feed_scale=feed_scale, fw_limits=fw_limits)
+                         feed_scale=feed_scale, fw_limits=fw_limits, with_limits=True)
+    tr, lim = tr
     s = sample(tr, path.s0_mm, profile.ts_s)
     start = tr.t0_s[:-1]
     return Schedule(ts_s=profile.ts_s, s_mm=s, method="kinematic",
                     info={"trapezoids": tr, "segment_start_s": start,
+                          "segment_plan": segment_plan(tr.vc_mm_s, tr.accel_mm_s2,
+                                                       lim.jerk_junction),
                           "segment_end_s": start + tr.motion_s, "plan_time_s": tr.duration_s,
                           "vmax_mm_s": vmax, "amax_mm_s2": amax})

@@ -142,7 +142,9 @@ class MoveLimits:
     max_accel_mm_s2, max_feed_mm_s: (M, 3) M201 / M203 for X, Y, Z;
     jd_mm: (M,) junction deviation (Klipper: from square_corner_velocity);
     jerk_mm_s: (M, 3) classic jerk, NaN where junction deviation applies;
-    velocity_mm_s: (M,) Klipper's max velocity (inf for Marlin)."""
+    velocity_mm_s: (M,) Klipper's max velocity (inf for Marlin);
+    e_accel_mm_s2, e_feed_mm_s: (M,) what an E-only move (retraction, prime) runs at: M204 R
+    within M201 E, and M203 E (its own F capped there)."""
 
     accel_mm_s2: np.ndarray
     max_accel_mm_s2: np.ndarray
@@ -150,6 +152,8 @@ class MoveLimits:
     jd_mm: np.ndarray
     jerk_mm_s: np.ndarray
     velocity_mm_s: np.ndarray
+    e_accel_mm_s2: np.ndarray
+    e_feed_mm_s: np.ndarray
 
 
 def move_limits(program, profile, fast: bool = True) -> MoveLimits:
@@ -177,7 +181,9 @@ def move_limits(program, profile, fast: bool = True) -> MoveLimits:
         vel = np.full(len(moves), np.inf)
     jerk = np.array([[np.nan] * 3 if q.jerk is None else [q.jerk[k] for k in "xyz"]
                      for q in snaps]).reshape(-1, 3)[si]
-    return MoveLimits(acc, macc, mfeed, jd, jerk, vel)
+    e_acc = np.array([min(q.accel_retract, q.max_accel["e"]) for q in snaps])[si]
+    e_feed = np.array([q.max_feed["e"] for q in snaps], dtype=float)[si]
+    return MoveLimits(acc, macc, mfeed, jd, jerk, vel, e_acc, e_feed)
 
 
 @dataclass(frozen=True)
@@ -238,6 +244,8 @@ def _move_limits_reference(program, profile) -> MoveLimits:
     jd = np.empty(m)
     jerk = np.full((m, 3), np.nan)
     vel = np.full(m, np.inf)
+    e_acc = np.empty(m)
+    e_feed = np.empty(m)
     for mi, mv in enumerate(program.moves):
         while ei < len(events) and events[ei].move_index <= mi:
             _apply_event(lim, events[ei], klipper)
@@ -251,7 +259,9 @@ def _move_limits_reference(program, profile) -> MoveLimits:
             jerk[mi] = [lim.jerk[k] for k in "xyz"]
         if klipper:
             vel[mi] = lim.velocity
-    return MoveLimits(acc, macc, mfeed, jd, jerk, vel)
+        e_acc[mi] = min(lim.accel_retract, lim.max_accel["e"])
+        e_feed[mi] = lim.max_feed["e"]
+    return MoveLimits(acc, macc, mfeed, jd, jerk, vel, e_acc, e_feed)
 
 
 def build_blocks(program, profile, fast: bool = True) -> Blocks:

@@ -3,6 +3,7 @@ junction rule, restores the settings after them, and the firmware model runs the
 as planned."""
 
 import dataclasses
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -11,7 +12,8 @@ from gcode_feedopt.gcode.path import build_path
 from gcode_feedopt.gcode.reader import read_program
 from gcode_feedopt.gcode.verify import verify
 from gcode_feedopt.gcode.writer import T_ACCEL, T_ORIG, write
-from gcode_feedopt.optimize.slowdown import PlanGrid
+from gcode_feedopt.optimize.methods import _segment_plan
+from gcode_feedopt.optimize.slowdown import PlanGrid, _cell_peaks
 from gcode_feedopt.plan.kinematic import effective_limits, planner_limits, writer_accel
 from gcode_feedopt.plan.schedule import Schedule
 from gcode_feedopt.profile import load_profile
@@ -44,7 +46,7 @@ def spiral(jerk: bool) -> bytes:
     return ("\n".join(lines) + "\n").encode()
 
 
-def slowed_plan(prog, path, profile, scale_of):
+def slowed_plan(prog, path, profile, scale_of, peaks=True):
     """A slow-down plan of ``path``: the firmware's own plan with every grid cell scaled by
     ``scale_of(cell_index, n_cells)`` (PlanGrid, as optimize.slowdown plans)."""
     vmax, axis_v, axis_a = effective_limits(profile, None, None)
@@ -54,21 +56,26 @@ def slowed_plan(prog, path, profile, scale_of):
     grid = PlanGrid(path, limits, 1.5, profile.ts_s)
     scale = np.array([scale_of(c, grid.n_cells) for c in range(grid.n_cells)], float)
     scale[grid.fixed] = 1.0
-    ss, _, _, _ = grid.plan(scale, np.arange(grid.n_pieces))
+    ss, _, _, v0 = grid.plan(scale, np.arange(grid.n_pieces))
     parts = [np.zeros(grid.lead_hold + 1)]
     for p, sp in enumerate(ss):
         parts += [sp, np.full(grid.piece_hold[p], sp[-1])]
     s = np.concatenate(parts)
     cells = {"s0_mm": grid.s0_mm, "parent": grid.parent, "scale": scale,
              "accel_mm_s2": grid.accel_mm_s2 * scale * scale, "vcap_mm_s": grid.vcap_mm_s * scale}
-    return Schedule(ts_s=profile.ts_s, s_mm=s, method="pidd", info={}), cells, fw_limits
+    info = {}
+    if peaks:  # what plan_slowdown and plan_offline hand the writer
+        cells.update(vpeak_mm_s=_cell_peaks(grid, SimpleNamespace(v0=v0, scale=scale)),
+                     jerk_junction=grid.jerk_junction)
+        info["segment_plan"] = _segment_plan(cells, path.n_segments)
+    return Schedule(ts_s=profile.ts_s, s_mm=s, method="pidd", info=info), cells, fw_limits
 
 
-def write_both(data, profile, scale_of):
+def write_both(data, profile, scale_of, peaks=True):
     fw = profile.firmware
     prog = read_program(data, "t.gcode", flavour=fw.flavour, g91_relative_e=fw.g91_relative_e)
     path = build_path(prog)
-    sched, cells, fw_limits = slowed_plan(prog, path, profile, scale_of)
+    sched, cells, fw_limits = slowed_plan(prog, path, profile, scale_of, peaks)
     acc = writer_accel(path, profile, fw_limits)
     told = write(prog, path, sched, profile, accel_mm_s2=acc, cells=cells,
                  settings=firmware.accel_settings(prog, profile))
