@@ -66,7 +66,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..plan.kinematic import PlannerLimits
-from ..plan.trapezoid import forward_backward, trapezoids
+from ..plan.trapezoid import forward_backward, peak_speed, trapezoids
 from .free import ranges
 
 
@@ -817,9 +817,7 @@ def _cell_peaks(grid: PlanGrid, state: _State) -> np.ndarray:
     v1 = np.append(v0[1:], 0.0)
     v1[grid.piece_cell[1:] - 1] = 0.0
     r = state.scale
-    a = grid.accel_mm_s2 * r * r
-    peak = np.sqrt(np.maximum((2.0 * a * grid.length_mm + v0 * v0 + v1 * v1) / 2.0, 0.0))
-    return np.maximum(np.minimum(grid.vcap_mm_s * r, peak), np.maximum(v0, v1))
+    return peak_speed(v0, v1, grid.accel_mm_s2 * r * r, grid.length_mm, grid.vcap_mm_s * r)
 
 
 def plan_slowdown(path, limits: PlannerLimits, evaluator, *, ts_s: float,

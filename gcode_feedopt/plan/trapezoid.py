@@ -183,6 +183,13 @@ class Trapezoids:
         return self.t_acc_s + self.t_cru_s + self.t_dec_s
 
 
+def peak_speed(v0, v1, accel, length, vcap):
+    """Top speed of a trapezoid from entry v0 to exit v1 over ``length`` at ``accel``, capped
+    at ``vcap`` (never below the faster end), mm/s."""
+    peak = np.sqrt(np.maximum((2.0 * accel * length + v0 * v0 + v1 * v1) / 2.0, 0.0))
+    return np.maximum(np.minimum(vcap, peak), np.maximum(v0, v1))
+
+
 def trapezoids(vj_mm_s: np.ndarray, length_mm: np.ndarray, accel_mm_s2: np.ndarray,
                vcap_mm_s: np.ndarray, dwell_s: np.ndarray, lead_s: float = 0.0) -> Trapezoids:
     """Phases of every segment given feasible junction speeds (from :func:`forward_backward`)."""
@@ -190,8 +197,7 @@ def trapezoids(vj_mm_s: np.ndarray, length_mm: np.ndarray, accel_mm_s2: np.ndarr
     v1 = vj_mm_s[1:]
     a = accel_mm_s2
     L = length_mm
-    peak = np.sqrt(np.maximum((2.0 * a * L + v0 * v0 + v1 * v1) / 2.0, 0.0))
-    vc = np.maximum(np.minimum(vcap_mm_s, peak), np.maximum(v0, v1))
+    vc = peak_speed(v0, v1, a, L, vcap_mm_s)
     t_acc = (vc - v0) / a
     t_dec = (vc - v1) / a
     d_acc = (vc * vc - v0 * v0) / (2.0 * a)

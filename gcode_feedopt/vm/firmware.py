@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..plan.trapezoid import forward_backward, junction_limits, sample, trapezoids
+from ..plan.trapezoid import forward_backward, junction_limits, peak_speed, sample, trapezoids
 from .trajectory import Trajectory
 
 #: Marlin's minimum planner speed (MINIMUM_PLANNER_SPEED), mm/s: junctions never go below it
@@ -622,9 +622,7 @@ def _plan(blocks: Blocks):
                     blocks.lead_s)
     if blocks.klipper and np.any(blocks.peak_accel < blocks.accel):
         # minimum_cruise_ratio: the peak of each block is what the smoothed accel allows
-        v0, v1 = vj[:-1], vj[1:]
-        peak = np.sqrt((2 * blocks.peak_accel * blocks.length_mm + v0 * v0 + v1 * v1) / 2)
-        vcap2 = np.maximum(np.minimum(blocks.vcap, peak), np.maximum(v0, v1))
+        vcap2 = peak_speed(vj[:-1], vj[1:], blocks.peak_accel, blocks.length_mm, blocks.vcap)
         tr = trapezoids(vj, blocks.length_mm, blocks.accel, vcap2, blocks.dwell_after_s,
                         blocks.lead_s)
     return tr
