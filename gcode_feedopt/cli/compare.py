@@ -12,6 +12,7 @@ import click
 from .simulate import _parse_effects
 
 COLUMNS = (("method", "method", "{}"), ("cycle_time_s", "cycle s", "{:.3f}"),
+           ("contour_time_s", "contour s", "{:.3f}"),
            ("rms_gamma_um", "RMS γ µm", "{:.2f}"), ("within_fraction", "within", "{:.4f}"),
            ("prediction_rms_x_mm", "pred RMS x mm", "{}"),
            ("prediction_rms_y_mm", "pred RMS y mm", "{}"), ("compute_s", "compute s", "{:.2f}"),
