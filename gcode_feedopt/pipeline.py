@@ -129,10 +129,12 @@ def optimize_file(in_path, out_path, profile, opts: Options) -> Report:
     with gc_paused():
         t0 = time.perf_counter()
         cells = sched.info.get("cells")
+        axis_a = effective_limits(profile, opts.vmax_mm_s, opts.amax_mm_s2)[2]
         result = write(program, path, sched, profile, mode=opts.mode,
                        accel_mm_s2=writer_accel(path, profile, fw_limits, opts.amax_mm_s2),
                        cells=cells,
-                       settings=None if cells is None else firmware.accel_settings(program, profile))
+                       settings=None if cells is None else firmware.accel_settings(program, profile),
+                       clamp=firmware.accel_clamp(program, profile, axis_a))
         wall["write"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         fw = profile.firmware

@@ -7,7 +7,8 @@ checked against the input:
 2. the extrusion of every original move equals the sum over its sub-moves within 1e-6 mm;
 3. every original move still ends at its original coordinates (1e-9 mm) — so the part is the
    same part; no line we added other than the re-timed pieces moves the machine, and the
-   acceleration lines around slowed stretches are M204 / M205 / SET_VELOCITY_LIMIT only;
+   acceleration lines (around slowed stretches, and the plan's limits where the file's are
+   higher) are M201 / M204 / M205 / SET_VELOCITY_LIMIT only;
 4. the output has exactly one more ident line than the input.
 
 Any failure raises VerifyError and nothing is written.
@@ -24,7 +25,7 @@ from .reader import Program, read_program, split_lines
 from .writer import T_ACCEL, T_IDENT, T_META, T_NEW, T_ORIG, WriteResult
 
 E_TOL_MM = 1e-6
-_ACCEL_LINE = (b"M204 ", b"M205 ", b"SET_VELOCITY_LIMIT ")
+_ACCEL_LINE = (b"M201 ", b"M204 ", b"M205 ", b"SET_VELOCITY_LIMIT ")
 XYZ_TOL_MM = 1e-9
 
 
@@ -60,7 +61,7 @@ def verify(program: Program, result: WriteResult, *, flavour: str, g91_relative_
     for k, (tag, _) in enumerate(result.tags):
         if tag == T_ACCEL and not out_lines[k].startswith(_ACCEL_LINE):
             raise VerifyError(f"{name}:{k + 1}: a line we added to set the acceleration is not "
-                              "M204, M205 or SET_VELOCITY_LIMIT; nothing was written")
+                              "M201, M204, M205 or SET_VELOCITY_LIMIT; nothing was written")
     # 2./3. extrusion and end points, from an independent parse of the output
     out = read_program(result.data, name, flavour=flavour, g91_relative_e=g91_relative_e)
     owner_of_line = {}

@@ -531,11 +531,13 @@ class _AccelState:
     in force (the profile's, then the file's) are restored before the next line that is not
     a slowed piece or a comment, and at the end of the file."""
 
-    def __init__(self, settings):
+    def __init__(self, settings, clamp=None):
         self.st = settings
         self.klipper = settings.flavour == "klipper"
         self.active = None  # (accel, r) in force from our lines, or None
         self.lines = 0
+        # Klipper's one ACCEL is also what the plan's limits clamp (vm.firmware.AccelClamp)
+        self.cap = clamp.want_mm_s2[:, 0] if clamp is not None and self.klipper else None
 
     def _jerk(self, mi):
         j = self.st.jerk_xy_mm_s[mi]
@@ -564,7 +566,10 @@ class _AccelState:
             return []
         mi = self._mi
         if self.klipper:
-            out = [f"SET_VELOCITY_LIMIT ACCEL={_fmt(float(self.st.accel_print_mm_s2[mi]), 3)} "
+            acc = float(self.st.accel_print_mm_s2[mi])
+            if self.cap is not None:
+                acc = min(acc, float(self.cap[mi]))
+            out = [f"SET_VELOCITY_LIMIT ACCEL={_fmt(acc, 3)} "
                    f"SQUARE_CORNER_VELOCITY={_fmt(float(self.st.scv_mm_s[mi]), 3)}".encode()
                    + ending]
         else:
@@ -576,6 +581,51 @@ class _AccelState:
         self.active = None
         self.lines += len(out)
         return out
+
+
+class _ClampState:
+    """The firmware's acceleration limits clamped to the plan's (vm.firmware.AccelClamp): a
+    line before any move where the limits in force are above the plan's, and the file's own
+    values back after the last move. A file line setting them again ends ours (``epoch``)."""
+
+    def __init__(self, clamp):
+        self.c = clamp
+        self.klipper = clamp.flavour == "klipper"
+        self.ours = None  # (epoch, values) of our last line
+        self.lines = 0
+
+    def _line(self, vals, ending: bytes) -> bytes:
+        if self.klipper:
+            return f"SET_VELOCITY_LIMIT ACCEL={_fmt(vals[0], 3)}".encode() + ending
+        return ("M201 " + " ".join(f"{a}{_fmt(v, 3)}" for a, v in zip("XYZ", vals))).encode() \
+            + ending
+
+    def _have(self, mi: int):
+        ep = int(self.c.epoch[mi])
+        if self.ours is not None and self.ours[0] == ep:
+            return self.ours[1]
+        return tuple(self.c.file_mm_s2[mi].tolist())
+
+    def before_move(self, mi: int, ending: bytes) -> list[bytes]:
+        want = tuple(self.c.want_mm_s2[mi].tolist())
+        if self._have(mi) == want:
+            return []
+        self.ours = (int(self.c.epoch[mi]), want)
+        self.lines += 1
+        return [self._line(want, ending)]
+
+    def set_to_want(self, mi: int) -> None:
+        """Another line of ours (Klipper's ACCEL restore) has set the clamped value."""
+        self.ours = (int(self.c.epoch[mi]), tuple(self.c.want_mm_s2[mi].tolist()))
+
+    def restore(self, mi: int, ending: bytes) -> list[bytes]:
+        """The file's values in force at move ``mi`` (the last), if ours hold."""
+        file = tuple(self.c.file_mm_s2[mi].tolist())
+        if self._have(mi) == file:
+            return []
+        self.ours = None
+        self.lines += 1
+        return [self._line(file, ending)]
 
 
 #: a planned segment is written as one line at its peak speed when the plan's acceleration is
@@ -694,7 +744,7 @@ def _time_at(s, ts, level):
 
 def write(program: Program, path: Path, schedule: Schedule, profile, *, mode: str = "refeed",
           accel_mm_s2: np.ndarray | None = None, fast: bool = True, cells: dict | None = None,
-          settings=None) -> WriteResult:
+          settings=None, clamp=None) -> WriteResult:
     """Write the re-timed G-code (see module docstring).
 
     ``cells`` (a slow-down plan's ``info["cells"]``: ``s0_mm`` (C+1,), ``scale`` (C,),
@@ -703,6 +753,12 @@ def write(program: Program, path: Path, schedule: Schedule, profile, *, mode: st
     (vm.firmware.accel_settings of the program): moves through slowed cells are cut at the
     cell runs and the firmware is told each run's acceleration (:class:`_AccelState`), in
     re-feedrated mode.
+
+    ``clamp`` (vm.firmware.accel_clamp of the program under the plan's axis limits, or None):
+    where the file lets the firmware accelerate harder than the plan (``--amax``, a profile's
+    lower limits), a line setting the plan's limits (Marlin ``M201 X Y Z``, Klipper
+    ``SET_VELOCITY_LIMIT ACCEL``) goes before the first move concerned and again after any
+    line of the file that sets them; the file's own values come back after the last move.
 
     ``accel_mm_s2``: (N,) the acceleration the firmware will use on each segment; where the
     plan follows the firmware's own trapezoid, one line with F = the plan's peak speed
@@ -747,13 +803,15 @@ def write(program: Program, path: Path, schedule: Schedule, profile, *, mode: st
         slowed = np.zeros(path.n_segments, bool)
         slowed[parent[hit]] = True
         if slowed.any():
-            acc_state = _AccelState(settings)
+            acc_state = _AccelState(settings, clamp)
             if one_speed is not None:
                 for k in np.flatnonzero(slowed).tolist():
                     one_speed[k] = math.nan
         else:
             slowed = None
     last_new = -1  # index in ``out`` after the last re-timed line
+    clamp_state = _ClampState(clamp) if clamp is not None else None
+    last_mi = -1  # the last move (for the clamp's restore)
 
     out: list[bytes] = []
     tags: list = []
@@ -785,6 +843,13 @@ def write(program: Program, path: Path, schedule: Schedule, profile, *, mode: st
                 lines = acc_state.restore(_ending(raw) or first_ending)
                 out.extend(lines)
                 tags.extend([(T_ACCEL, -1)] * len(lines))
+                if lines and clamp_state is not None and acc_state.klipper and mi is not None:
+                    clamp_state.set_to_want(mi)
+        if mi is not None and clamp_state is not None:
+            lines = clamp_state.before_move(mi, _ending(raw) or first_ending)
+            out.extend(lines)
+            tags.extend([(T_ACCEL, -1)] * len(lines))
+            last_mi = mi
         if mi is not None:
             mv = moves[mi]
             k = seg_of_move.get(mi)
@@ -882,12 +947,23 @@ def write(program: Program, path: Path, schedule: Schedule, profile, *, mode: st
         if f_word is not None:
             cur_feed = orig_feed = f_word
     accel_lines = 0
+    if clamp_state is not None and last_mi >= 0:
+        # the file's own limits back right after the last motion line
+        last_line = moves[last_mi].line_no
+        at = len(tags)
+        while at > 0 and not (tags[at - 1] == (T_NEW, last_mi)
+                              or tags[at - 1] == (T_ORIG, last_line)):
+            at -= 1
+        lines = clamp_state.restore(last_mi, first_ending)
+        out[at:at] = lines
+        tags[at:at] = [(T_ACCEL, -1)] * len(lines)
+        accel_lines += clamp_state.lines
     if acc_state is not None:
         # the file ends in a slowed stretch (then comments): restore right after it
         lines = acc_state.restore(first_ending)
         out[last_new:last_new] = lines
         tags[last_new:last_new] = [(T_ACCEL, -1)] * len(lines)
-        accel_lines = acc_state.lines
+        accel_lines += acc_state.lines
     return WriteResult(data=b"".join(out), tags=tags, lines_written=len(out),
                        moves_changed=moves_changed, sub_moves=sub_moves,
                        accel_lines=accel_lines)

@@ -3,10 +3,15 @@ firmware's junction rule, sampled at Ts. The first optimizer, and later the base
 
 Limits, per segment:
 - speed: the profile's V_max (or the override), each axis's maximum feed projected on the
-  direction, optionally the slicer's F; on arcs also the centripetal limit v²/R ≤ A/2;
+  direction, optionally the slicer's F; on arcs also the centripetal limit v²/R ≤ A (what
+  Marlin's small-segment junction rule gives the chords it cuts an arc into);
 - acceleration along the path: min over axes of A_axis/|u_axis| on lines (so no axis ever
-  exceeds its limit); on arcs A/2 tangential (the other half is left to the centripetal part,
-  so |a_x|, |a_y| ≤ A everywhere on the arc);
+  exceeds its limit in the tangential phases); on arcs min(A_x, A_y), as the firmware
+  accelerates the chords. An A/2 tangential + A/2 centripetal split would keep every axis
+  within A on the arc, but the firmware does not apply it: the file ran arcs 1.2 % faster than
+  such a plan (ArcWelder Benchy), so the twin would have judged a slower motion than the one
+  executed. Tangential and centripetal parts then add up to at most √2·A on an axis, as on the
+  chords of any polyline curve; the twin judges the resulting contour error.
 - junctions: the firmware's own junction rule (Marlin's junction deviation, or Klipper's
   square-corner velocity mapped to a junction deviation plus its centripetal limit), so a plan
   never asks for a corner speed the firmware would refuse — the written G-code then runs as
@@ -40,6 +45,18 @@ def _axis_caps(path: Path, axis_limit: dict, scalar_cap: float | None) -> np.nda
     if scalar_cap is not None:
         caps = np.minimum(caps, scalar_cap)
     return caps
+
+
+def _klipper_norm_cap(path: Path, acc: np.ndarray, axis_limit: dict, firmware) -> np.ndarray:
+    """Klipper has one acceleration, the vector's norm: where the writer clamps it to the
+    plan's limits (vm.firmware.accel_clamp) a diagonal XY move gets no more than an axis."""
+    if firmware.flavour != "klipper":
+        return acc
+    t_beg, _ = path.end_tangents()
+    xy = np.hypot(t_beg[:, 0], t_beg[:, 1]) > 1e-12
+    acc = acc.copy()
+    acc[xy] = np.minimum(acc[xy], min(axis_limit["x"], axis_limit["y"]))
+    return acc
 
 
 def deviation_for(firmware, accel_mm_s2: float) -> tuple[float, bool]:
@@ -113,12 +130,12 @@ def planner_limits(path: Path, *, vmax_mm_s: float, axis_vmax_mm_s: dict,
     vcap = _axis_caps(path, axis_vmax_mm_s, vmax_mm_s)
     if use_slicer_feed:
         vcap = np.minimum(vcap, path.feed_mm_s * feed_scale)
-    acc = _axis_caps(path, axis_amax_mm_s2, None)
+    acc = _klipper_norm_cap(path, _axis_caps(path, axis_amax_mm_s2, None), axis_amax_mm_s2,
+                            firmware)
     arc = path.kind != SEG_LINE
     if np.any(arc):
         a_xy = min(axis_amax_mm_s2["x"], axis_amax_mm_s2["y"])
-        acc[arc] = np.minimum(acc[arc], 0.5 * a_xy)
-        vcap[arc] = np.minimum(vcap[arc], np.sqrt(0.5 * a_xy * path.radius_mm[arc]))
+        vcap[arc] = np.minimum(vcap[arc], np.sqrt(a_xy * path.radius_mm[arc]))
     # numbered (fixed) lines keep the slicer's speed: they are written back unchanged
     vcap = np.where(path.fixed, np.minimum(vcap, path.feed_mm_s), vcap)
     centripetal = firmware.flavour == "klipper"
@@ -194,10 +211,7 @@ def effective_limits(profile, vmax_mm_s: float | None = None, amax_mm_s2: float 
 def segment_accel(path: Path, profile, amax_mm_s2: float | None = None) -> np.ndarray:
     """(N,) acceleration along each segment that keeps every axis within its limit."""
     _, _, axis_a = effective_limits(profile, None, amax_mm_s2)
-    acc = _axis_caps(path, axis_a, None)
-    arc = path.kind != SEG_LINE
-    if np.any(arc):
-        acc[arc] = np.minimum(acc[arc], 0.5 * min(axis_a["x"], axis_a["y"]))
+    acc = _klipper_norm_cap(path, _axis_caps(path, axis_a, None), axis_a, profile.firmware)
     return acc
 
 

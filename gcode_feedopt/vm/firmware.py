@@ -211,6 +211,49 @@ def accel_settings(program, profile) -> AccelSettings:
                          np.array([q.scv for q in snaps])[si])
 
 
+@dataclass(frozen=True)
+class AccelClamp:
+    """The acceleration limits a writer must set so the firmware accelerates no harder than
+    the plan, at every move (M moves), where the plan's limits (the profile's, ``--amax``) are
+    below the file's: Marlin's per-axis maxima ``M201 X Y Z`` (k = 3; the firmware's move
+    acceleration is min(M204, M201 scaled to the direction), the plan's the same with the
+    profile's axis limits, so clamping M201 makes them equal), Klipper's one ``ACCEL`` (k = 1,
+    the vector's norm; the plan caps XY moves at the smaller X/Y limit there too).
+
+    file_mm_s2, want_mm_s2: (M, k) the file's values in force and the clamped ones;
+    epoch: (M,) number of the file's lines setting them before each move (a writer's own
+    line holds until the file sets them again)."""
+
+    flavour: str
+    file_mm_s2: np.ndarray
+    want_mm_s2: np.ndarray
+    epoch: np.ndarray
+
+
+def accel_clamp(program, profile, axis_amax_mm_s2: dict) -> AccelClamp | None:
+    """:class:`AccelClamp` of ``program`` under the plan's axis limits (plan.kinematic
+    .effective_limits), or None when the file's settings are never above them."""
+    klipper = profile.firmware.flavour == "klipper"
+    snaps, si = _limit_snapshots(program, profile, klipper)
+    if klipper:
+        file = np.array([[q.accel_print] for q in snaps], dtype=float).reshape(-1, 1)
+        cap = np.array([min(axis_amax_mm_s2["x"], axis_amax_mm_s2["y"])])
+        sets = [ev.name == "SET_VELOCITY_LIMIT" and "ACCEL" in ev.params
+                or ev.name == "M204" for ev in program.events]
+    else:
+        file = np.array([[q.max_accel[k] for k in "xyz"] for q in snaps],
+                        dtype=float).reshape(-1, 3)
+        cap = np.array([axis_amax_mm_s2[k] for k in "xyz"], dtype=float)
+        sets = [ev.name == "M201" for ev in program.events]
+    if not len(program.moves) or not np.any(file[np.unique(si)] > cap):
+        return None
+    ev_mi = np.array([ev.move_index for ev, hit in zip(program.events, sets) if hit],
+                     dtype=np.int64)
+    epoch = np.searchsorted(ev_mi, np.arange(len(program.moves)), side="right")
+    return AccelClamp("klipper" if klipper else "marlin", file[si], np.minimum(file[si], cap),
+                      epoch)
+
+
 def _limit_snapshots(program, profile, klipper: bool):
     """The limits in force after each event (``snaps``: E+1, the first before any event) and,
     (M,) per move, the index of the snapshot in force at it (after every event read before
