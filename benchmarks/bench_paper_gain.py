@@ -23,17 +23,17 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import pathlib
 import time
 
 import numpy as np
-from scipy.interpolate import BSpline
 
 from gcode_feedopt.optimize.compare import run_method
-from gcode_feedopt.optimize.methods import rms_violation_ratio
+from gcode_feedopt.optimize.methods import largest_passing_scale, rms_violation_ratio
 from gcode_feedopt.pipeline import path_for, read_for
 from gcode_feedopt.plan.bound import time_optimal_bound
+from gcode_feedopt.plan.curves import nurbs_points
+from gcode_feedopt.plan.trapezoid import sample, trapezoids
 from gcode_feedopt.profile import load_profile
 from gcode_feedopt.vm import effects as fx
 from gcode_feedopt.vm.plant import Plant
@@ -51,31 +51,19 @@ SCENARIOS = {
 METHODS = ("kinematic", "conservative", "pidd", "oracle")
 
 
-def butterfly_points(n: int = 200001) -> np.ndarray:
-    d = json.loads(NURBS.read_text())
-    p, t = d["degree"], np.asarray(d["knots"], float)
-    cp, w = np.asarray(d["control_points_mm"], float), np.asarray(d["weights"], float)
-    u = np.linspace(t[p], t[-p - 1], n)
-    return (BSpline(t, cp * w[:, None], p)(u) / BSpline(t, w, p)(u)[:, None])[:, :2]
-
-
 def rest_to_rest(length: float, v: float, a: float, ts: float) -> np.ndarray:
-    """Distance travelled at each sample of a constant-acceleration trapezoid (rest to rest)."""
+    """Distance travelled at each sample after the start of a constant-acceleration
+    trapezoid over ``length`` (rest to rest; plan.trapezoid, one segment)."""
     if length <= 0:
         return np.zeros(0)
-    if v * v / a > length:
-        v = math.sqrt(a * length)
-    ta, tc = v / a, length / v - v / a
-    T = 2 * ta + tc
-    t = np.arange(1, int(math.ceil(T / ts)) + 1) * ts
-    s = np.where(t < ta, 0.5 * a * t * t,
-                 np.where(t < ta + tc, 0.5 * a * ta * ta + v * (t - ta),
-                          length - 0.5 * a * np.maximum(T - t, 0.0) ** 2))
-    return np.minimum(s, length)
+    one = np.ones(1)
+    tr = trapezoids(np.zeros(2), length * one, a * one, v * one, np.zeros(1))
+    return sample(tr, np.array([0.0, length]), ts)[1:]
 
 
-def paper_baseline(path, prof, plant, tol, eta, steps: int = 12):
-    """One trapezoid over the contour (travels before/after at full limits, rest between)."""
+def paper_baseline(path, prof, plant, tol, eta):
+    """One trapezoid over the contour (travels before/after at full limits, rest between),
+    limits scaled like conservative's (methods.largest_passing_scale)."""
     ext = np.flatnonzero(path.de_mm > 0)
     s_a = float(path.s0_mm[ext[0]])
     s_b = float(path.s0_mm[ext[-1]] + path.length_mm[ext[-1]])
@@ -87,30 +75,17 @@ def paper_baseline(path, prof, plant, tol, eta, steps: int = 12):
         s = np.concatenate([[0.0], rest_to_rest(s_a, V, A, ts), s_a + contour,
                             s_b + rest_to_rest(L - s_b, V, A, ts)])
         r, m = rms_violation_ratio(path, s, plant, tol, ts)
-        return contour.size * ts, r, m
+        return r, (contour.size * ts, m)
 
-    budget = 1.0 - eta
-    best = run(1.0)
-    scale = 1.0
-    if best[1] > budget:
-        lo, hi = 0.02, 1.0
-        best = run(lo)
-        for _ in range(steps):
-            mid = math.sqrt(lo * hi)
-            out = run(mid)
-            if out[1] <= budget:
-                lo, best = mid, out
-            else:
-                hi = mid
-        scale = lo
-    return scale, best
+    scale, r, (t_contour, met), _ = largest_passing_scale(run, 1.0 - eta, steps=12)
+    return scale, (t_contour, r, met)
 
 
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--scenario", default=",".join(SCENARIOS))
     a = ap.parse_args()
-    pts = butterfly_points()
+    pts = nurbs_points(json.loads(NURBS.read_text()))
     for name in a.scenario.split(","):
         machine, tol, effect = SCENARIOS[name]
         prof = load_profile(machine)

@@ -130,11 +130,12 @@ def optimize_file(in_path, out_path, profile, opts: Options) -> Report:
         t0 = time.perf_counter()
         cells = sched.info.get("cells")
         axis_a = effective_limits(profile, opts.vmax_mm_s, opts.amax_mm_s2)[2]
+        clamp = firmware.accel_clamp(program, profile, axis_a)
         result = write(program, path, sched, profile, mode=opts.mode,
                        accel_mm_s2=writer_accel(path, profile, fw_limits, opts.amax_mm_s2),
-                       cells=cells,
-                       settings=None if cells is None else firmware.accel_settings(program, profile),
-                       clamp=firmware.accel_clamp(program, profile, axis_a))
+                       cells=cells, clamp=clamp,
+                       settings=None if cells is None
+                       else firmware.accel_settings(program, profile, clamp))
         wall["write"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         fw = profile.firmware

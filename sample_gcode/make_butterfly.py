@@ -15,7 +15,8 @@ import pathlib
 import sys
 
 import numpy as np
-from scipy.interpolate import BSpline
+
+from gcode_feedopt.plan.curves import nurbs_curve
 
 HERE = pathlib.Path(__file__).resolve().parent
 DEFAULT_JSON = HERE.parent.parent / "shared" / "data" / "butterfly_nurbs.json"
@@ -25,16 +26,6 @@ LAYER_MM = 0.2
 WIDTH_MM = 0.4
 FILAMENT_MM = 1.75
 FEED_MM_MIN = 1800  # the slicer-style feed: 30 mm/s
-
-
-def nurbs(data):
-    p = data["degree"]
-    cp = np.asarray(data["control_points_mm"], float)
-    w = np.asarray(data["weights"], float)
-    t = np.asarray(data["knots"], float)
-    num = BSpline(t, cp * w[:, None], p)
-    den = BSpline(t, w, p)
-    return (lambda u: num(u) / den(u)[:, None]), t[p], t[-p - 1]
 
 
 def sample_curve(curve, u0, u1, tol):
@@ -69,7 +60,7 @@ def main(argv):
     src = pathlib.Path(argv[1]) if len(argv) > 1 else DEFAULT_JSON
     out = pathlib.Path(argv[2]) if len(argv) > 2 else HERE / "butterfly.gcode"
     data = json.loads(src.read_text())
-    curve, u0, u1 = nurbs(data)
+    curve, u0, u1 = nurbs_curve(data)
     u = sample_curve(curve, u0, u1, CHORD_TOL_MM)
     pts = curve(u)
     # check the chord error on a 10x finer grid

@@ -531,13 +531,11 @@ class _AccelState:
     in force (the profile's, then the file's) are restored before the next line that is not
     a slowed piece or a comment, and at the end of the file."""
 
-    def __init__(self, settings, clamp=None):
+    def __init__(self, settings):
         self.st = settings
         self.klipper = settings.flavour == "klipper"
         self.active = None  # (accel, r) in force from our lines, or None
         self.lines = 0
-        # Klipper's one ACCEL is also what the plan's limits clamp (vm.firmware.AccelClamp)
-        self.cap = clamp.want_mm_s2[:, 0] if clamp is not None and self.klipper else None
 
     def _jerk(self, mi):
         j = self.st.jerk_xy_mm_s[mi]
@@ -566,10 +564,7 @@ class _AccelState:
             return []
         mi = self._mi
         if self.klipper:
-            acc = float(self.st.accel_print_mm_s2[mi])
-            if self.cap is not None:
-                acc = min(acc, float(self.cap[mi]))
-            out = [f"SET_VELOCITY_LIMIT ACCEL={_fmt(acc, 3)} "
+            out = [f"SET_VELOCITY_LIMIT ACCEL={_fmt(float(self.st.accel_print_mm_s2[mi]), 3)} "
                    f"SQUARE_CORNER_VELOCITY={_fmt(float(self.st.scv_mm_s[mi]), 3)}".encode()
                    + ending]
         else:
@@ -589,8 +584,11 @@ class _ClampState:
     values back after the last move. A file line setting them again ends ours (``epoch``)."""
 
     def __init__(self, clamp):
-        self.c = clamp
         self.klipper = clamp.flavour == "klipper"
+        # per move, as Python tuples: compared once per motion line
+        self.want = [tuple(r) for r in clamp.want_mm_s2.tolist()]
+        self.file = [tuple(r) for r in clamp.file_mm_s2.tolist()]
+        self.epoch = clamp.epoch.tolist()
         self.ours = None  # (epoch, values) of our last line
         self.lines = 0
 
@@ -601,26 +599,25 @@ class _ClampState:
             + ending
 
     def _have(self, mi: int):
-        ep = int(self.c.epoch[mi])
-        if self.ours is not None and self.ours[0] == ep:
+        if self.ours is not None and self.ours[0] == self.epoch[mi]:
             return self.ours[1]
-        return tuple(self.c.file_mm_s2[mi].tolist())
+        return self.file[mi]
 
     def before_move(self, mi: int, ending: bytes) -> list[bytes]:
-        want = tuple(self.c.want_mm_s2[mi].tolist())
+        want = self.want[mi]
         if self._have(mi) == want:
             return []
-        self.ours = (int(self.c.epoch[mi]), want)
+        self.ours = (self.epoch[mi], want)
         self.lines += 1
         return [self._line(want, ending)]
 
     def set_to_want(self, mi: int) -> None:
         """Another line of ours (Klipper's ACCEL restore) has set the clamped value."""
-        self.ours = (int(self.c.epoch[mi]), tuple(self.c.want_mm_s2[mi].tolist()))
+        self.ours = (self.epoch[mi], self.want[mi])
 
     def restore(self, mi: int, ending: bytes) -> list[bytes]:
         """The file's values in force at move ``mi`` (the last), if ours hold."""
-        file = tuple(self.c.file_mm_s2[mi].tolist())
+        file = self.file[mi]
         if self._have(mi) == file:
             return []
         self.ours = None
@@ -803,7 +800,7 @@ def write(program: Program, path: Path, schedule: Schedule, profile, *, mode: st
         slowed = np.zeros(path.n_segments, bool)
         slowed[parent[hit]] = True
         if slowed.any():
-            acc_state = _AccelState(settings, clamp)
+            acc_state = _AccelState(settings)
             if one_speed is not None:
                 for k in np.flatnonzero(slowed).tolist():
                     one_speed[k] = math.nan

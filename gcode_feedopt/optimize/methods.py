@@ -69,6 +69,30 @@ def rms_violation_ratio(path, s_mm, plant, tol_mm, ts_s) -> tuple[float, object]
     return m.rms_gamma_mm / tol_mm, m
 
 
+def largest_passing_scale(run, budget: float, *, lo: float = CONSERVATIVE_MIN_SCALE,
+                          steps: int = CONSERVATIVE_STEPS):
+    """The largest scale of the limits whose ``run(scale)`` → (ratio, result) keeps ratio ≤
+    ``budget``: 1 if it passes, else geometric bisection on [lo, 1] in ``steps`` (``lo`` when
+    nothing passes). Returns (scale, ratio, result, trials [(scale, ratio)])."""
+    r, res = run(1.0)
+    trials = [(1.0, r)]
+    if r <= budget:
+        return 1.0, r, res, trials
+    hi = 1.0
+    r_lo, res_lo = run(lo)
+    trials.append((lo, r_lo))
+    best = (lo, r_lo, res_lo)
+    for _ in range(steps):
+        mid = math.sqrt(lo * hi)
+        r_m, res_m = run(mid)
+        trials.append((mid, r_m))
+        if r_m <= budget:
+            lo, best = mid, (mid, r_m, res_m)
+        else:
+            hi = mid
+    return (*best, trials)
+
+
 def plan_conservative(path, profile, *, tolerance_mm, stringency, plant, vmax_mm_s=None,
                       amax_mm_s2=None, fw_limits=None, use_slicer_feed: bool = False):
     """Largest common scale of V_max and A_max (bisection) whose trapezoid plan keeps
@@ -81,27 +105,9 @@ def plan_conservative(path, profile, *, tolerance_mm, stringency, plant, vmax_mm
     def run(scale):
         sch = plan_kinematic(path, profile, vmax_mm_s=vmax * scale, amax_mm_s2=amax * scale,
                              fw_limits=fw_limits, use_slicer_feed=use_slicer_feed)
-        r, m = rms_violation_ratio(path, sch.s_mm, plant, tolerance_mm, profile.ts_s)
-        return sch, r, m
+        return rms_violation_ratio(path, sch.s_mm, plant, tolerance_mm, profile.ts_s)[0], sch
 
-    sch, r, m = run(1.0)
-    trials = [(1.0, r)]
-    if r <= budget:
-        best = (1.0, sch, r)
-    else:
-        lo, hi = CONSERVATIVE_MIN_SCALE, 1.0
-        sch_lo, r_lo, _ = run(lo)
-        trials.append((lo, r_lo))
-        best = (lo, sch_lo, r_lo)
-        for _ in range(CONSERVATIVE_STEPS):
-            mid = math.sqrt(lo * hi)
-            sch_m, r_m, _ = run(mid)
-            trials.append((mid, r_m))
-            if r_m <= budget:
-                lo, best = mid, (mid, sch_m, r_m)
-            else:
-                hi = mid
-    scale, sch, r = best
+    scale, r, sch, trials = largest_passing_scale(run, budget)
     info = dict(sch.info)
     info.update({"conservative_scale": scale, "vmax_mm_s": vmax * scale,
                  "amax_mm_s2": amax * scale, "rms_violation_ratio": r,

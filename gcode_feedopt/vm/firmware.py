@@ -199,15 +199,20 @@ class AccelSettings:
     scv_mm_s: np.ndarray
 
 
-def accel_settings(program, profile) -> AccelSettings:
-    """:class:`AccelSettings` of ``program`` (the profile's, then the file's own settings)."""
+def accel_settings(program, profile, clamp=None) -> AccelSettings:
+    """:class:`AccelSettings` of ``program`` (the profile's, then the file's own settings); with
+    a Klipper :class:`AccelClamp`, its one accel as clamped to the plan's limits (what a writer
+    restores after a slowed stretch is then the clamped value)."""
     klipper = profile.firmware.flavour == "klipper"
     snaps, si = _limit_snapshots(program, profile, klipper)
     jerk = np.array([[np.nan] * 2 if q.jerk is None or klipper else [q.jerk["x"], q.jerk["y"]]
                      for q in snaps]).reshape(-1, 2)
-    return AccelSettings(profile.firmware.flavour,
-                         np.array([q.accel_print for q in snaps])[si],
-                         np.array([q.accel_travel for q in snaps])[si], jerk[si],
+    acc_p = np.array([q.accel_print for q in snaps])[si]
+    acc_t = np.array([q.accel_travel for q in snaps])[si]
+    if clamp is not None and klipper:
+        acc_p = np.minimum(acc_p, clamp.want_mm_s2[:, 0])
+        acc_t = np.minimum(acc_t, clamp.want_mm_s2[:, 0])
+    return AccelSettings(profile.firmware.flavour, acc_p, acc_t, jerk[si],
                          np.array([q.scv for q in snaps])[si])
 
 

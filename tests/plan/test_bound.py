@@ -7,10 +7,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from scipy.interpolate import BSpline
 
 from gcode_feedopt.pipeline import path_for, read_for
 from gcode_feedopt.plan.bound import time_optimal_bound
+from gcode_feedopt.plan.curves import nurbs_points
 from gcode_feedopt.plan.kinematic import plan_kinematic
 from gcode_feedopt.profile import load_profile
 
@@ -55,12 +55,8 @@ def test_feed_cap_dominates_gentle_curve():
     assert b.time_s == pytest.approx(b.length_mm / 20.0 + 20.0 / 3000.0, rel=2e-3)
 
 
-def butterfly_points(data_dir, n=200001):
-    d = json.loads((data_dir / "butterfly_nurbs.json").read_text())
-    p, t = d["degree"], np.asarray(d["knots"], float)
-    cp, w = np.asarray(d["control_points_mm"], float), np.asarray(d["weights"], float)
-    u = np.linspace(t[p], t[-p - 1], n)
-    return (BSpline(t, cp * w[:, None], p)(u) / BSpline(t, w, p)(u)[:, None])[:, :2]
+def butterfly_points(data_dir):
+    return nurbs_points(json.loads((data_dir / "butterfly_nurbs.json").read_text()))
 
 
 def test_kinematic_plan_of_the_butterfly_is_time_optimal(data_dir):
