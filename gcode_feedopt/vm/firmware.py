@@ -50,6 +50,14 @@ class _Limits:
     jerk: dict | None = None
 
 
+def _norm3(d) -> float:
+    """Length of a 3-vector as √((dx² + dy²) + dz²), written out: the fast block builder
+    computes the same expression element-wise, and ``np.linalg.norm`` does not promise that
+    order (NumPy 2.4 gives a different last bit), which the bit-identity tests would see."""
+    dx, dy, dz = float(d[0]), float(d[1]), float(d[2])
+    return math.sqrt((dx * dx + dy * dy) + dz * dz)
+
+
 def _initial(profile) -> _Limits:
     fw = profile.firmware
     return _Limits(accel_print=fw.accel_mm_s2, accel_travel=fw.travel_accel_mm_s2,
@@ -367,7 +375,7 @@ def _build_blocks_reference(program, profile) -> Blocks:
             pts[-1] = np.asarray(mv.end_mm, float)
         else:
             pts.append(np.asarray(mv.end_mm, float))
-        total = sum(float(np.linalg.norm(pts[j + 1] - pts[j])) for j in range(len(pts) - 1))
+        total = sum(_norm3(pts[j + 1] - pts[j]) for j in range(len(pts) - 1))
         de_total = mv.de_mm
         if total <= 1e-9:
             if abs(de_total) <= 1e-12:
@@ -386,7 +394,7 @@ def _build_blocks_reference(program, profile) -> Blocks:
         base_a = lim.accel_print if extruding else lim.accel_travel
         for j in range(len(pts) - 1):
             d = pts[j + 1] - pts[j]
-            L = float(np.linalg.norm(d))
+            L = _norm3(d)
             if L <= 1e-12:
                 continue
             u = np.abs(d) / L
@@ -469,7 +477,7 @@ def _arc_rows(mv, lim: _Limits, fw, klipper: bool, feed: float):
                              arc.center_mm[1] + arc.radius_mm * math.sin(th),
                              mv.start_mm[2] + (mv.end_mm[2] - mv.start_mm[2]) * u]))
     pts[-1] = np.asarray(mv.end_mm, float)
-    total = sum(float(np.linalg.norm(pts[j + 1] - pts[j])) for j in range(len(pts) - 1))
+    total = sum(_norm3(pts[j + 1] - pts[j]) for j in range(len(pts) - 1))
     if total <= 1e-9:
         return None
     de_total = mv.de_mm
@@ -478,7 +486,7 @@ def _arc_rows(mv, lim: _Limits, fw, klipper: bool, feed: float):
     rows = []
     for j in range(len(pts) - 1):
         d = pts[j + 1] - pts[j]
-        L = float(np.linalg.norm(d))
+        L = _norm3(d)
         if L <= 1e-12:
             continue
         u = np.abs(d) / L
@@ -506,8 +514,7 @@ def _build_blocks_fast(program, profile) -> Blocks:
     The limits in force are taken once per event (a snapshot after each) and looked up per
     move; a straight move is one block whose length, caps and accelerations are computed
     element-wise with the reference's operations in the same order (the length as
-    √((dx² + dy²) + dz²), which is what ``np.linalg.norm`` of a 3-vector gives), so the blocks
-    are bit-identical. Arcs (rare: chords) go through the reference's code."""
+    √((dx² + dy²) + dz²), :func:`_norm3`), so the blocks are bit-identical. Arcs (rare: chords) go through the reference's code."""
     fw = profile.firmware
     klipper = fw.flavour == "klipper"
     moves = program.moves
