@@ -34,3 +34,8 @@ class SolverError(FeedOptError):
     """A numerical solver failed in a way no fallback could absorb."""
 
     exit_code = 3
+
+
+class ModelWarning(UserWarning):
+    """Data the model takes but explains badly (an FRF the modal fit misses, repeats that
+    disagree, a mode at the edge of the band). The CLI prints each as one line on stderr."""

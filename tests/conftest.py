@@ -11,6 +11,8 @@ SHARED = REPO.parent / "shared"
 DATA = SHARED / "data"
 GCODE_DIR = DATA / "gcode"
 MEASURED_DIR = DATA / "measured"
+#: benchA: a machine simulated apart from this project (its README and labels.json)
+INDEPENDENT_DIR = DATA / "independent"
 
 
 def pytest_collection_modifyitems(config, items):
@@ -34,3 +36,28 @@ def gcode_files() -> list[pathlib.Path]:
     if not files:
         pytest.skip(f"no G-code in {GCODE_DIR}")
     return files
+
+
+@pytest.fixture(scope="session")
+def bench_a():
+    """(profile built from benchA's 12 FRFs as ``profile build`` builds it, labels.json)."""
+    import json
+
+    from gcode_feedopt.profile import load_profile
+    from gcode_feedopt.profile.build import build_from_frfs
+
+    if not INDEPENDENT_DIR.is_dir():
+        pytest.skip(f"benchA not found at {INDEPENDENT_DIR}")
+    frf = INDEPENDENT_DIR / "frf"
+    prof, _ = build_from_frfs(load_profile("ender3pro"),
+                              {a: sorted(frf.glob(f"{a}_*.csv")) for a in "xy"}, name="benchA")
+    labels = json.loads((INDEPENDENT_DIR / "labels.json").read_text())
+    return prof, labels
+
+
+def bench_a_log(name: str):
+    """(cmd (K, 2), measured (K, 2)) of a benchA log, mm."""
+    import numpy as np
+
+    a = np.loadtxt(INDEPENDENT_DIR / "logs" / name, delimiter=",", skiprows=1)
+    return a[:, 1:3], a[:, 3:5]

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import importlib
 import sys
+import warnings
 
 import click
 
@@ -81,6 +82,13 @@ def cli():
     """
 
 
+def _show_warning(message, category, filename, lineno, file=None, line=None):
+    """Our own warnings (ModelWarning, ...) as one line on stderr, without the source line."""
+    text = str(message).replace("\n", " ")
+    click.echo(f"gcode-feedopt: warning: {text}", err=True)
+
+
 def main(argv: list[str] | None = None) -> None:
     """Console-script entry point."""
+    warnings.showwarning = _show_warning
     cli.main(args=argv if argv is not None else sys.argv[1:], prog_name="gcode-feedopt")

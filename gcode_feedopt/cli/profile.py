@@ -9,8 +9,7 @@ import pathlib
 import click
 
 from ..profile import load_profile, save_profile
-from ..profile.frf_io import frf_set_from_files
-from ..profile.schema import AxisModel
+from ..profile.build import build_from_frfs
 
 
 @click.group("profile")
@@ -61,19 +60,10 @@ def build(args):
     output = pathlib.Path(o["output"])
     if not frf_x and not frf_y:
         raise click.UsageError("give --frf-x and/or --frf-y files")
-    base_p = load_profile(base)
-    axes = dict(base_p.axes)
-    for axis, files in (("x", frf_x), ("y", frf_y)):
-        if files:
-            frf = frf_set_from_files(files)
-            axes[axis] = AxisModel(frf=frf, modes=(), provenance={
-                "kind": "measured", "files": [str(pathlib.Path(f).resolve()) for f in files],
-                "n_measurements": frf.n_measurements})
-    prov = dict(base_p.provenance)
-    prov["built_from"] = {"base": base_p.name, "frf_x": list(frf_x), "frf_y": list(frf_y)}
-    twin = dataclasses.replace(base_p.twin, priors={})  # priors of the base do not apply
-    new = dataclasses.replace(base_p, name=name or output.stem, axes=axes, provenance=prov,
-                              twin=twin, description=f"built from measured FRFs on {base_p.name} limits")
+    new, lines = build_from_frfs(load_profile(base), {"x": frf_x, "y": frf_y},
+                                 name=name or output.stem)
+    for line in lines:
+        click.echo(f"profile build: {line}", err=True)
     save_profile(new, output)
     load_profile(output)  # round trip: what we wrote must load
     click.echo(f"profile build: wrote {output}", err=True)
@@ -94,6 +84,7 @@ def _summary(p) -> dict:
             "limits": dataclasses.asdict(L), "firmware": dataclasses.asdict(p.firmware),
             "twin": {"n2": p.twin.n2, "n3": p.twin.n3, "sigma_eps_mm": p.twin.sigma_eps_mm,
                      "coef_variance": p.twin.coef_variance, "n_taps": p.twin.n_taps,
+                     "physics": p.twin.physics, "dc_gain": p.twin.dc_gain,
                      "priors": {a: {"learned_from": list(pr.learned_from)}
                                 for a, pr in p.twin.priors.items()}},
             "axes": axes, "provenance": p.provenance, "source": p.source_path}

@@ -91,12 +91,11 @@ class Diagnosis:
 
 def nominal_impulse(profile) -> dict:
     """axis -> (mean (n,), factor (n, r)) of the twin's impulse response, unit DC gain."""
-    from ..twin.frf import impulse_response
+    from ..twin.physics import axis_impulse
 
     out = {}
     for ax in AXES:
-        ir = impulse_response(profile.axes[ax].frf, profile.ts_s, profile.twin.n_taps,
-                              method=profile.twin.coef_variance)
+        ir = axis_impulse(profile, ax)
         s = float(np.sum(ir.mean))
         out[ax] = (np.asarray(ir.mean) / s, np.asarray(ir.factor) / s)
     return out

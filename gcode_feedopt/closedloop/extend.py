@@ -1,17 +1,17 @@
 """Write a diagnosis into a profile that ``optimize`` uses.
 
-The twin (and so every optimizer method) sees an axis only through its FRF set, so the
-effects that are *linear* in the command go into the FRF rows themselves — no schema change,
-and every consumer of the profile uses the extended model at once:
+The twin (and so every optimizer method) sees an axis through its physics, built by
+``twin.physics`` from the axis's FRF set. The effects that are *linear* in the command are
+stored as the axis's extensions (``axes.<axis>.effects`` in the YAML) and applied to every
+fitted model of the axis, so every consumer of the profile uses the extended model at once:
 
-- ``delay`` (d): H'(f) = H(f)·e^{−j2πfd};
-- ``gain`` (s): H'(f) = s·H(f) (in the twin's coordinates, deviations from the first
-  commanded sample; the constant (s−1)·x_0 offset moves the whole part and no contour);
-- ``resonance_shift`` (f1): H'(f) = H(f·f0/f1), f0 the twin's dominant mode, interpolated in
-  magnitude and unwrapped phase on the same grid (outside the grid: the edge value).
+- ``delay`` (delay_s): the response delay_s later;
+- ``gain`` (scale): the response times scale (in the twin's coordinates, deviations from the
+  first commanded sample; the constant (s−1)·x_0 offset moves the whole part and no contour);
+- ``resonance_shift`` (frequency_hz): the dominant mode moved there as a mass change moves it.
 
 The other kinds (periodic_time/position, backlash, friction, cross_coupling) are not a
-commanded→actual FRF; they are recorded in ``provenance["closed_loop"]`` with their
+commanded→actual linear response; they are recorded in ``provenance["closed_loop"]`` with their
 parameters but the optimizer's predictor does not use them yet (stated in docs/diagnose.md).
 """
 
@@ -22,28 +22,13 @@ import datetime
 
 import numpy as np
 
-from ..vm import effects as fx
-
 LINEAR_KINDS = ("delay", "gain", "resonance_shift")
 
 
-def _shift_rows(freq_hz, rows, ratio):
-    """rows (N, F) complex -> H(f / ratio) per row (mode f0 -> ratio·f0)."""
-    f_src = freq_hz / ratio
-    out = np.empty_like(rows)
-    for i, h in enumerate(rows):
-        mag = np.interp(f_src, freq_hz, np.abs(h))
-        ph = np.interp(f_src, freq_hz, np.unwrap(np.angle(h)))
-        out[i] = mag * np.exp(1j * ph)
-    return out
-
-
 def extend_profile(profile, effects: list[dict], *, source: str = "", mode_hz: dict | None = None):
-    """A copy of ``profile`` with the linear ``effects`` (diagnose's dicts) folded into the
-    FRF rows and every effect recorded in provenance. ``mode_hz``: axis -> the twin's
-    dominant mode (for resonance_shift; default from the twin's mean impulse response)."""
-    from .diagnose import nominal_impulse
-
+    """A copy of ``profile`` with the linear ``effects`` (diagnose's dicts) added to the axes'
+    extensions and every effect recorded in provenance. ``mode_hz`` is accepted for
+    compatibility and unused: a resonance shift moves the fitted dominant mode."""
     axes = dict(profile.axes)
     applied, recorded = [], []
     for e in effects:
@@ -54,26 +39,15 @@ def extend_profile(profile, effects: list[dict], *, source: str = "", mode_hz: d
             recorded.append(e)
             continue
         am = axes[ax]
-        f = np.asarray(am.frf.freq_hz, float)
-        rows = np.asarray(am.frf.response, complex)
-        if kind == "delay":
-            rows = rows * np.exp(-2j * np.pi * f * p["delay_s"])[None, :]
-        elif kind == "gain":
-            rows = rows * p["scale"]
-        else:
-            if mode_hz and ax in mode_hz:
-                f0 = mode_hz[ax]
-            else:
-                f0 = fx.dominant_mode_hz(nominal_impulse(profile)[ax][0], profile.ts_s)
-            rows = _shift_rows(f, rows, p["frequency_hz"] / f0)
-        frf = dataclasses.replace(am.frf, response=rows)
-        axes[ax] = dataclasses.replace(am, frf=frf)
+        params = {k: float(v) for k, v in p.items()
+                  if k in ("delay_s", "scale", "frequency_hz")}
+        axes[ax] = dataclasses.replace(am, effects=tuple(am.effects) + ({"kind": kind, "params": params},))
         applied.append(e)
     prov = dict(profile.provenance)
     hist = list(prov.get("closed_loop", []))
     hist.append({"diagnosed_from": source,
                  "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-                 "folded_into_frf": _plain(applied), "recorded_not_modelled": _plain(recorded)})
+                 "applied_to_the_model": _plain(applied), "recorded_not_modelled": _plain(recorded)})
     prov["closed_loop"] = hist
     return dataclasses.replace(profile, axes=axes, provenance=prov)
 

@@ -116,59 +116,17 @@ def plan_conservative(path, profile, *, tolerance_mm, stringency, plant, vmax_mm
     return Schedule(ts_s=sch.ts_s, s_mm=sch.s_mm, method="conservative", info=info)
 
 
-#: Prior std of the *sum* of the x̂ weights (the physics model's DC gain): stepper axes
-#: position by counting steps, and every FRF draw keeps the certain DC gain (twin.frf).
-DC_GAIN_STD = 1e-6
-
-
-def shift_invariant_cov(cov: np.ndarray, n2: int, dc_std: float = DC_GAIN_STD) -> np.ndarray:
-    """Prior covariance of β with the x̂-weight block made shift-invariant.
-
-    The features are deviations from the first commanded sample, so with independent x̂
-    weights (physics_prior: σ = 1e-4 each) the predictive variance grows as
-    Σ_j σ² x̂_j² with the distance from the start: 177 mm from the origin it is 0.058 mm,
-    more than half of a 0.1 mm tolerance, for a machine whose DC gain is certain. We keep
-    the stated uncertainty on the *shape* of the weights (differences, which act on the
-    motion) and give their sum — a gain error, the only part a translation sees — the std
-    ``dc_std``: Σ' = P Σ P + dc_std² 11ᵀ/m on the x̂ block, P = I − 11ᵀ/m."""
-    cov = np.array(cov, float)
-    idx = np.arange(1, 2 + n2)
-    m = idx.size
-    one = np.full((m, 1), 1.0 / np.sqrt(m))
-    P = np.eye(m) - one @ one.T
-    full_P = np.eye(cov.shape[0])
-    full_P[np.ix_(idx, idx)] = P
-    out = full_P @ cov @ full_P.T
-    out[np.ix_(idx, idx)] += dc_std ** 2 * (one @ one.T) * m
-    return 0.5 * (out + out.T)
-
-
 def make_twin_predictor(profile, method: str, *, learn: bool):
-    """TwinPredictor of a profile for pb | dd | pidd."""
-    from ..twin.features import n_features, physics_prior
-    from ..twin.frf import impulse_response
+    """TwinPredictor of a profile for pb | dd | pidd: the physics and the weight prior from
+    the one constructor the twin itself uses (twin.physics.axis_impulse, twin.model.axis_prior)."""
+    from ..twin.model import axis_prior
+    from ..twin.physics import axis_impulse
 
     tw = profile.twin
-    irs, mus, covs = [], [], []
-    d = n_features(tw.n2, tw.n3)
-    for ax in ("x", "y"):
-        irs.append(impulse_response(profile.axes[ax].frf, profile.ts_s, tw.n_taps,
-                                    method=tw.coef_variance))
-        if method == "dd":
-            mus.append(np.zeros(d))
-            covs.append(np.eye(d))
-            continue
-        prior = tw.priors.get(ax)
-        if prior is not None:
-            mus.append(np.array(prior.mu, float))
-            covs.append(np.array(prior.cov, float))
-        else:
-            m, c = physics_prior(tw.n2, tw.n3)
-            mus.append(m)
-            covs.append(c)
-    covs = [shift_invariant_cov(c, tw.n2) for c in covs] if method != "dd" else covs
-    return TwinPredictor(irs, tw.n2, tw.n3, tw.sigma_eps_mm ** 2, mus, covs,
-                         use_feature_var=(method != "dd"),
+    irs = [axis_impulse(profile, ax) for ax in ("x", "y")]
+    priors = [axis_prior(profile, ax, method=method) for ax in ("x", "y")]
+    return TwinPredictor(irs, tw.n2, tw.n3, tw.sigma_eps_mm ** 2, [p[0] for p in priors],
+                         [p[1] for p in priors], use_feature_var=(method != "dd"),
                          learn=learn and method in ("dd", "pidd"))
 
 

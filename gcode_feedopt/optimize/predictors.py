@@ -529,7 +529,7 @@ def predict_trajectory(tp: TwinPredictor, cmd: np.ndarray, series: bool = False,
     ``ref``: (K, 2) per-sample reference the deviations are taken from (default: the first
     command, as the windowed twin). Several independent windows can be predicted in one call
     by concatenating them with each window's first command as its reference: the twin is
-    time-invariant and its prior shift-invariant (methods.shift_invariant_cov), so a window
+    time-invariant and its prior shift-invariant (twin.features.shift_invariant_cov), so a window
     predicts its own samples exactly once it holds the twin's memory (n_taps + max(n2, n3)
     samples) of history; before that the jump between windows is still in the filters.
 

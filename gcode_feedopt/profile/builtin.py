@@ -176,14 +176,15 @@ PRIORS_NOTE = ("not learned (absent on purpose): the twin starts from its physic
 
 def with_learned_priors(prof: MachineProfile) -> MachineProfile:
     """The profile with (μ_β, Σ_β) per axis by the twin's Appendix-A MLE and a record of it."""
+    from ..twin.physics import axis_impulse, member_impulses
     from ..twin.prior import init_prior
     from .schema import Prior
 
     T = prof.twin
     priors = {}
     for ax, model in prof.axes.items():
-        mu, cov, record = init_prior(model.frf.freq_hz, model.frf.response, prof.ts_s, T.n_taps,
-                                     T.n2, T.n3, T.sigma_eps_mm, method=T.coef_variance)
+        mu, cov, record = init_prior(axis_impulse(prof, ax), member_impulses(prof, ax), prof.ts_s,
+                                     T.n2, T.n3, T.sigma_eps_mm)
         record = dict(record, frf=f"{prof.name} axis {ax}: {model.frf.n_measurements} FRFs",
                       function="gcode_feedopt.twin.prior.init_prior")
         priors[ax] = Prior(mu=np.asarray(mu, float), cov=np.asarray(cov, float),

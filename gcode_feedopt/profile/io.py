@@ -151,9 +151,23 @@ def _read_axis(sec: _Section, base_dir: pathlib.Path | None) -> AxisModel:
                           damping=ms.getfloat("damping", above=0, below=1),
                           gain=ms.getfloat("gain", 1.0)))
         ms.check_unknown()
+    effects = []
+    for k, e in enumerate(sec.raw("effects", [])):
+        es = _Section(e, f"{sec._key('effects')}[{k}]", sec.origin)
+        kind = es.getchoice("kind", ("delay", "gain", "resonance_shift"))
+        ps = es.section("params")
+        if kind == "delay":
+            params = {"delay_s": ps.getfloat("delay_s", minval=-0.1, maxval=0.1)}
+        elif kind == "gain":
+            params = {"scale": ps.getfloat("scale", above=0.5, below=2.0)}
+        else:
+            params = {"frequency_hz": ps.getfloat("frequency_hz", above=0, maxval=1e4)}
+        ps.check_unknown()
+        es.check_unknown()
+        effects.append({"kind": kind, "params": params})
     prov = sec.raw("provenance", {})
     sec.check_unknown()
-    return AxisModel(frf=frf, modes=tuple(modes), provenance=prov)
+    return AxisModel(frf=frf, modes=tuple(modes), provenance=prov, effects=tuple(effects))
 
 
 def _read_prior(sec: _Section, n: int) -> Prior:
@@ -230,6 +244,8 @@ def parse_profile(data, origin: str, base_dir: pathlib.Path | None) -> MachinePr
         coef_variance=tw.getchoice("coef_variance", ("minmax", "sample", "ensemble"), "minmax"),
         n_taps=tw.getint("n_taps", 500, minval=8, maxval=100000),
         priors=priors,
+        physics=tw.getchoice("physics", ("modal", "bins"), "modal"),
+        dc_gain=tw.getchoice("dc_gain", ("unit", "fitted"), "unit"),
     )
     tw.check_unknown()
     provenance = top.raw("provenance", {})
@@ -301,7 +317,8 @@ def profile_to_dict(profile: MachineProfile, frf_paths: dict | None = None) -> d
                      "retract_speed_mm_s": F.retract_speed_mm_s},
         "axes": {},
         "twin": {"n2": T.n2, "n3": T.n3, "sigma_eps_mm": T.sigma_eps_mm,
-                 "coef_variance": T.coef_variance, "n_taps": T.n_taps},
+                 "coef_variance": T.coef_variance, "n_taps": T.n_taps,
+                 "physics": T.physics, "dc_gain": T.dc_gain},
         "provenance": profile.provenance,
     }
     if T.priors:
@@ -313,6 +330,9 @@ def profile_to_dict(profile: MachineProfile, frf_paths: dict | None = None) -> d
         if ax.modes:
             ad["modes"] = [{"freq_hz": m.freq_hz, "damping": m.damping, "gain": m.gain}
                            for m in ax.modes]
+        if ax.effects:
+            ad["effects"] = [{"kind": e["kind"], "params": {k: float(v) for k, v in e["params"].items()}}
+                             for e in ax.effects]
         if ax.provenance:
             ad["provenance"] = ax.provenance
         d["axes"][a] = ad

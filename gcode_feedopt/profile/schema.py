@@ -113,9 +113,15 @@ class Prior:
 
 @dataclass(frozen=True)
 class AxisModel:
+    """One axis: its measured FRF set, the modes a generator or fit reported, provenance, and
+    the extensions a diagnosis added (``effects``: dicts ``{"kind", "params"}`` of the
+    catalogue's linear kinds — ``delay`` {delay_s}, ``gain`` {scale}, ``resonance_shift``
+    {frequency_hz} — which ``twin.physics`` applies to every fitted model of the axis)."""
+
     frf: FRFSet | None
     modes: tuple = ()
     provenance: dict = field(default_factory=dict)
+    effects: tuple = ()
 
 
 @dataclass(frozen=True)
@@ -128,6 +134,10 @@ class TwinSettings:
         coef_variance: ``minmax`` (paper Eq. 9, 3σ = half the min–max range), ``sample``, or ``ensemble`` (sample covariance of the N_H measured impulse responses, twin.frf.ensemble_impulse_response; the built-ins use it).
         n_taps: impulse-response length used by the twin.
         priors: axis -> Prior (absent when not learned yet).
+        physics: ``modal`` (each FRF fitted with a continuous-time modal model, twin.modal; the
+            default) or ``bins`` (the raw FRF bins, paper Eqs. 9–11, ``coef_variance``).
+        dc_gain: ``unit`` (H(0) = 1 exactly: a position axis at rest sits at its command) or
+            ``fitted`` (the data's own low-frequency gain).
     """
 
     n2: int
@@ -136,6 +146,8 @@ class TwinSettings:
     coef_variance: str
     n_taps: int
     priors: dict = field(default_factory=dict)
+    physics: str = "modal"
+    dc_gain: str = "unit"
 
 
 @dataclass(frozen=True)

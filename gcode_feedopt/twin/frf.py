@@ -250,6 +250,14 @@ def draw_impulse_responses(*args, size: int | None = None, method: str = "minmax
     return _fold(h, n_taps)
 
 
+def member_impulses(freq_hz, response, ts_s, n_taps) -> np.ndarray:
+    """(N_H, n_taps) impulse response of each measured FRF (same folding as the Gaussian)."""
+    n, bins = dft_grid(freq_hz, ts_s)
+    H = _on_bins(np.asarray(freq_hz, float), response, bins)
+    A, B = _basis(n, n_taps)
+    return H.real @ A.T + H.imag @ B.T
+
+
 def _fold(h: np.ndarray, n_taps: int) -> np.ndarray:
     """Truncate to n_taps, adding everything beyond (the slow tail and the wrapped negative-
     time ringing) to tap 0. See :func:`_basis`."""

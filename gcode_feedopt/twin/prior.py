@@ -21,7 +21,7 @@ from scipy.optimize import minimize
 from scipy.signal import oaconvolve
 
 from .features import feature_matrix, n_features, physics_prior, xhat
-from .frf import _basis, _on_bins, coefficient_stats, dft_grid, impulse_response
+from .frf import ImpulseResponse
 
 
 def trial_trajectory(ts_s: float, amp_mm: float = 20.0, vmax_mm_s: float = 30.0,
@@ -49,23 +49,16 @@ def trial_trajectory(ts_s: float, amp_mm: float = 20.0, vmax_mm_s: float = 30.0,
     return np.asarray(out)
 
 
-def member_impulses(freq_hz, response, ts_s, n_taps) -> np.ndarray:
-    """(N_H, n_taps) impulse response of each measured FRF (same folding as the Gaussian)."""
-    n, bins = dft_grid(freq_hz, ts_s)
-    H = _on_bins(np.asarray(freq_hz, float), response, bins)
-    A, B = _basis(n, n_taps)
-    return H.real @ A.T + H.imag @ B.T
-
-
-def init_prior(freq_hz, response, ts_s, n_taps, n2, n3, sigma_eps_mm, *, method="minmax",
+def init_prior(ir: ImpulseResponse, hs: np.ndarray, ts_s, n2, n3, sigma_eps_mm, *,
                max_samples: int = 3000):
-    """(μ_β, Σ_β, record) by maximum likelihood on the trial trajectory (module docstring)."""
+    """(μ_β, Σ_β, record) by maximum likelihood on the trial trajectory (module docstring).
+
+    ``ir``: the axis's Gaussian impulse response; ``hs`` (N_H, n_taps): each measured FRF's
+    own response (``twin.physics.axis_impulse`` / ``member_impulses``)."""
     x_d = trial_trajectory(ts_s)
-    ir = impulse_response(freq_hz, response, ts_s, n_taps, method=method)
     xm, _ = xhat(ir, x_d, with_var=False)
     xm = xm - x_d[0]
     M, _ = feature_matrix(xm, np.zeros_like(xm), np.zeros_like(xm), n2, n3)
-    hs = member_impulses(freq_hz, response, ts_s, n_taps)
     w = x_d - x_d[0]
     step = max(1, len(x_d) // max_samples)
     idx = np.arange(0, len(x_d), step)

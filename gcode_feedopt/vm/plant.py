@@ -19,7 +19,7 @@ is one machine of the population the FRFs describe, which is what a log from a r
 shows and what the closed loop learns. ``seed`` fixes the draw (x and y from independent child
 streams of ``numpy.random.SeedSequence(seed)``) and the sensor noise (a third stream), so
 adding an effect never changes the drawn dynamics. ``nominal=True`` uses the twin's mean
-response instead (``twin.frf.impulse_response(...).mean``).
+response instead (``twin.physics.axis_impulse(...).mean``).
 
 Caveat (measured, see README "Virtual machine"): the FRF coefficients are independent per
 frequency bin, so a single draw has a noise tail that does not decay over the n_taps (|h| of a
@@ -150,8 +150,8 @@ def simulate_axes(cmd_mm: np.ndarray, ts_s: float, impulse: Mapping[str, np.ndar
 class Plant:
     """A seeded machine: one draw of the profile's FRF distribution plus unknown effects.
 
-    ``Plant(profile, seed, effects)`` draws from ``profile.axes[ax].frf`` through
-    ``twin.frf.draw_impulse_responses``; ``Plant.from_impulse`` takes the responses directly
+    ``Plant(profile, seed, effects)`` draws from the profile's Gaussian impulse response
+    through ``twin.physics.draw_impulses``; ``Plant.from_impulse`` takes the responses directly
     (tests, or a model identified elsewhere).
     """
 
@@ -159,21 +159,21 @@ class Plant:
                  n_taps: int | None = None, unit_dc_gain: bool = True, nominal: bool = False):
         """``nominal``: use the mean impulse response of the FRF distribution instead of a
         draw (a machine without the known uncertainty; the seed then only drives the noise)."""
-        from ..twin.frf import draw_impulse_responses, impulse_response  # FRF -> h is the twin's
+        from ..twin import physics  # FRF -> h is the twin's
 
         seq = np.random.SeedSequence(seed)
         draw_seq, noise_seq = seq.spawn(2)
         axis_seqs = draw_seq.spawn(len(PLANT_AXES))
-        n = int(n_taps if n_taps is not None else profile.twin.n_taps)
-        method = profile.twin.coef_variance
+        if n_taps is not None and int(n_taps) != profile.twin.n_taps:
+            import dataclasses
+            profile = dataclasses.replace(profile, twin=dataclasses.replace(profile.twin,
+                                                                            n_taps=int(n_taps)))
         impulse = {}
         for ax, s in zip(PLANT_AXES, axis_seqs):
-            model = profile.axes[ax]
             if nominal:
-                h = np.asarray(impulse_response(model.frf, profile.ts_s, n, method=method).mean)
+                h = np.asarray(physics.axis_impulse(profile, ax).mean)
             else:
-                h = np.asarray(draw_impulse_responses(model.frf, profile.ts_s, n,
-                                                      np.random.default_rng(s), 1, method=method))[0]
+                h = np.asarray(physics.draw_impulses(profile, ax, np.random.default_rng(s), 1))[0]
             impulse[ax] = h
         # resonance_shift moves the peak of |H| of *this draw* (not the profile's nominal mode
         # list): the frequency a diagnosis can measure in the log lands on frequency_hz

@@ -1,5 +1,5 @@
-"""The extended model goes into a profile: FRF rows reproduce the linear effect; saved and
-loaded back exactly; the diagnose CLI writes it."""
+"""The extended model goes into a profile: the axis's extensions reproduce the linear effect
+in the twin's physics; saved and loaded back exactly; the diagnose CLI writes it."""
 
 import numpy as np
 import pytest
@@ -10,6 +10,7 @@ from gcode_feedopt.closedloop.diagnose import nominal_impulse
 from gcode_feedopt.closedloop.extend import extend_profile
 from gcode_feedopt.profile import load_profile
 from gcode_feedopt.profile.io import save_profile
+from gcode_feedopt.twin.physics import axis_impulse, mean_model
 from gcode_feedopt.vm import effects as fx
 from gcode_feedopt.vm.plant import respond
 
@@ -23,20 +24,24 @@ CMD = 10 + 0.1 * np.cumsum(np.r_[np.zeros(100), np.ones(200), np.zeros(300)])
     ({"kind": "gain", "axis": "x", "params": {"scale": 1.02}},
      lambda h: CMD[0] + 1.02 * (respond(CMD, h) - CMD[0]), 1e-9),
     ({"kind": "resonance_shift", "axis": "x", "params": {"frequency_hz": 32.0}},
-     lambda h: respond(CMD, fx.rescale_impulse_response(h, 32.0 / fx.dominant_mode_hz(h, P.ts_s))), 0.25),
+     lambda h: respond(CMD, _shifted_mean(32.0)), 0.05),
 ])
-def test_linear_effect_folded_into_frf(effect, truth, limit):
+def test_linear_effect_applied_to_the_model(effect, truth, limit):
     h0 = nominal_impulse(P)["x"][0]
     ext = extend_profile(P, [effect])
-    from gcode_feedopt.twin.frf import impulse_response
-
-    hm = impulse_response(ext.axes["x"].frf, P.ts_s, P.twin.n_taps, method=P.twin.coef_variance).mean
+    hm = axis_impulse(ext, "x").mean
     y = truth(h0)
     before = np.max(np.abs(respond(CMD, h0) - y))
     after = np.max(np.abs(respond(CMD, hm) - y))
     assert after <= limit * before
-    rec = ext.provenance["closed_loop"][-1]["folded_into_frf"]
+    rec = ext.provenance["closed_loop"][-1]["applied_to_the_model"]
     assert rec[0]["kind"] == effect["kind"]
+
+
+def _shifted_mean(f1):
+    """The representative model's dominant mode moved to f1 Hz as a mass change moves it."""
+    m = mean_model(P, "x")
+    return m.mode_shifted(m.dominant, f1 / m.freq_hz[m.dominant]).impulse(P.ts_s, P.twin.n_taps)
 
 
 def test_extended_profile_round_trip(tmp_path):
@@ -46,6 +51,8 @@ def test_extended_profile_round_trip(tmp_path):
     path = save_profile(ext, tmp_path / "ext.yaml")
     back = load_profile(path)
     np.testing.assert_allclose(back.axes["y"].frf.response, ext.axes["y"].frf.response, rtol=1e-9)
+    assert back.axes["y"].effects == ext.axes["y"].effects == ({"kind": "delay", "params": {"delay_s": 0.004}},)
+    np.testing.assert_allclose(axis_impulse(back, "y").mean, axis_impulse(ext, "y").mean, atol=1e-12)
     assert back.provenance["closed_loop"] == ext.provenance["closed_loop"]
     assert back.provenance["closed_loop"][0]["recorded_not_modelled"][0]["kind"] == "backlash"
 
@@ -59,5 +66,5 @@ def test_diagnose_cli_writes_profile(tmp_path):
     r = CliRunner().invoke(cli, ["diagnose", "-m", "ender3pro", str(p), "-o", str(out)])
     assert r.exit_code == 0, r.output
     ext = load_profile(out)
-    rec = ext.provenance["closed_loop"][-1]["folded_into_frf"][0]
+    rec = ext.provenance["closed_loop"][-1]["applied_to_the_model"][0]
     assert rec["kind"] == "delay" and abs(rec["params"]["delay_s"] - 0.006) < 0.00012

@@ -11,7 +11,8 @@ import sys
 import numpy as np
 import pytest
 
-from gcode_feedopt.optimize.methods import make_twin_predictor, plan_schedule, shift_invariant_cov
+from gcode_feedopt.optimize.methods import make_twin_predictor, plan_schedule
+from gcode_feedopt.twin.features import shift_invariant_cov
 from gcode_feedopt.profile import load_profile
 from gcode_feedopt.twin.frf import draw_impulse_responses, ensemble_impulse_response, \
     impulse_response
@@ -95,8 +96,14 @@ def test_shift_invariant_prior_does_not_grow_with_distance_from_the_start(ender)
     shifted = psi.copy()
     shifted[1:2 + n2] += 177.0
     assert shifted @ cov @ shifted > 100 * (psi @ cov @ psi)  # the plain prior does grow
-    # shift-invariant: only the (tiny) DC-gain variance sees the translation
-    assert abs(shifted @ cs @ shifted - psi @ cs @ psi) < 2 * (177.0 * (n2 + 1)) ** 2 * 1e-12
+    # shift-invariant: only the (tiny) DC-gain variance sees the translation, and the sum of
+    # the weights (the gain) has exactly the stated std
+    from gcode_feedopt.twin.features import DC_GAIN_STD
+
+    ones = np.zeros_like(psi)
+    ones[1:2 + n2] = 1.0
+    assert ones @ cs @ ones == pytest.approx(DC_GAIN_STD ** 2, rel=1e-9)
+    assert abs(shifted @ cs @ shifted - psi @ cs @ psi) < 2 * (177.5 * DC_GAIN_STD) ** 2
     assert np.linalg.eigvalsh(cs).min() >= -1e-18
 
 

@@ -147,10 +147,10 @@ def test_resonance_shift_moves_the_measured_peak_of_a_profile_draw():
 
 def test_nominal_plant_is_the_twin_mean_response():
     from gcode_feedopt.profile import load_profile
-    from gcode_feedopt.twin.frf import impulse_response
+    from gcode_feedopt.twin.physics import axis_impulse
 
     prof = load_profile("ender3pro")
     plant = Plant(prof, seed=9, nominal=True)
-    mean = impulse_response(prof.axes["x"].frf, prof.ts_s, prof.twin.n_taps,
-                            method=prof.twin.coef_variance).mean
-    np.testing.assert_allclose(plant.impulse["x"], mean / mean.sum(), atol=1e-12)
+    mean = axis_impulse(prof, "x").mean
+    assert mean.sum() == pytest.approx(1.0, abs=1e-12)  # the DC gain is pinned, not rescaled
+    np.testing.assert_allclose(plant.impulse["x"], mean, atol=1e-12)

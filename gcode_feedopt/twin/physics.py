@@ -1,0 +1,179 @@
+"""The one constructor of an axis's physics: profile → Gaussian impulse response.
+
+Every consumer of the twin's physics (the twin itself, the optimizer's predictors, the virtual
+machine's plant draws, the diagnosis, the learned prior) gets it from here, so they all agree.
+
+``twin.physics: modal`` (the default): each measured FRF is fitted with a continuous-time modal
+model with the DC gain pinned at 1 (``twin.modal``), each fit gives an impulse response, and the
+Gaussian impulse response is their sample mean and covariance. ``twin.physics: bins`` keeps the
+raw-bin route (``twin.frf``: the paper's per-bin coefficients or the ensemble of the bins'
+responses, ``coef_variance``) with the DC bin pinned at the same gain.
+
+Fits are cached per process by the FRF data's hash: a profile is loaded many times in a run.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import warnings
+
+import numpy as np
+
+from ..errors import ModelWarning, ProfileError
+from . import frf as _frf
+from .modal import AxisModal, ensemble_impulse, fit_axis
+
+_CACHE: dict = {}
+
+
+def _key(freq_hz, response, *extra) -> str:
+    h = hashlib.sha1()
+    h.update(np.ascontiguousarray(freq_hz, float).tobytes())
+    h.update(np.ascontiguousarray(response, complex).tobytes())
+    h.update(repr(extra).encode())
+    return h.hexdigest()
+
+
+def dc_gain_of(profile) -> float | None:
+    """The pinned DC gain (1), or None when the profile says to keep the data's."""
+    return None if profile.twin.dc_gain == "fitted" else 1.0
+
+
+def axis_modal(profile, axis: str, *, warn: bool = True) -> AxisModal:
+    """The modal fits of a profile axis's FRF set (cached); warnings go to ``warnings.warn``
+    once per set (the CLI prints them as one line each)."""
+    ax = profile.axes.get(axis)
+    if ax is None or ax.frf is None:
+        raise ProfileError(f"profile {profile.name}: axis {axis} has no FRFs; add its FRF files "
+                           "(axes.{axis}.frf) or build the profile with `profile build`")
+    frf = ax.frf
+    dc = dc_gain_of(profile)
+    k = _key(frf.freq_hz, frf.response, "modal", dc, profile.ts_s, ax.effects)
+    got = _CACHE.get(k)
+    if got is None:
+        try:
+            got = fit_axis(frf.freq_hz, frf.response, frf.labels, axis=axis, dc_gain=dc,
+                           nyquist_hz=0.5 / profile.ts_s)
+        except ValueError as exc:
+            raise ProfileError(f"profile {profile.name}, axis {axis}: {exc}") from None
+        got = apply_effects(got, ax.effects)
+        _CACHE[k] = got
+        if warn:
+            for w in got.warnings:
+                warnings.warn(f"profile {profile.name}, axis {axis}: {w}", ModelWarning, stacklevel=2)
+    return got
+
+
+def axis_impulse(profile, axis: str) -> _frf.ImpulseResponse:
+    """The Gaussian impulse response of a profile axis (module docstring)."""
+    tw = profile.twin
+    n_taps = tw.n_taps
+    if tw.physics == "modal":
+        fits = axis_modal(profile, axis)
+        k = _key(profile.axes[axis].frf.freq_hz, profile.axes[axis].frf.response, "ir",
+                 dc_gain_of(profile), profile.ts_s, n_taps, profile.axes[axis].effects)
+        got = _CACHE.get(k)
+        if got is None:
+            mean, L = ensemble_impulse(fits.models, profile.ts_s, n_taps)
+            got = _frf.ImpulseResponse(ts_s=profile.ts_s, mean=mean,
+                                       var=np.einsum("ij,ij->i", L, L), factor=L)
+            _CACHE[k] = got
+        return got
+    freq, resp = _bins(profile, axis)
+    return _frf.impulse_response(freq, resp, profile.ts_s, n_taps, method=tw.coef_variance)
+
+
+def apply_effects(fits: AxisModal, effects) -> AxisModal:
+    """The fits with a diagnosis's linear extensions applied to every member (a delay, a gain
+    about the origin, the dominant mode moved as a mass change moves it)."""
+    if not effects:
+        return fits
+    new = []
+    dom = fits.mean_model().dominant
+    f_dom = float(fits.mean_model().freq_hz[dom])
+    for ft in fits.fits:
+        m = ft.model
+        for e in effects:
+            p = e["params"]
+            if e["kind"] == "delay":
+                m = m.delayed(p["delay_s"])
+            elif e["kind"] == "gain":
+                m = m.scaled(p["scale"])
+            elif e["kind"] == "resonance_shift":
+                m = m.mode_shifted(dom, p["frequency_hz"] / f_dom)
+        new.append(dataclasses.replace(ft, model=m))
+    return dataclasses.replace(fits, fits=tuple(new))
+
+
+def _bins(profile, axis: str):
+    """(freq_hz, responses) of the raw-bin route: DC pinned, the axis's extensions applied to
+    the rows (delay e^{−j2πfd}, gain ×s, resonance shift H(f·f0/f1))."""
+    ax = profile.axes[axis]
+    freq, resp = pinned_bins(ax.frf.freq_hz, ax.frf.response, dc_gain_of(profile))
+    for e in ax.effects:
+        p = e["params"]
+        if e["kind"] == "delay":
+            resp = resp * np.exp(-2j * np.pi * freq * p["delay_s"])[None, :]
+        elif e["kind"] == "gain":
+            resp = resp * p["scale"]
+        elif e["kind"] == "resonance_shift":
+            f0 = float(mean_model(profile, axis).freq_hz[mean_model(profile, axis).dominant])
+            resp = _shift_rows(freq, resp, p["frequency_hz"] / f0)
+    return freq, resp
+
+
+def _shift_rows(freq_hz, rows, ratio):
+    """rows (N, F) complex -> H(f / ratio) per row (mode f0 -> ratio·f0), interpolated in
+    magnitude and unwrapped phase (outside the grid: the edge value)."""
+    f_src = freq_hz / ratio
+    out = np.empty_like(rows)
+    for i, h in enumerate(rows):
+        mag = np.interp(f_src, freq_hz, np.abs(h))
+        ph = np.interp(f_src, freq_hz, np.unwrap(np.angle(h)))
+        out[i] = mag * np.exp(1j * ph)
+    return out
+
+
+def pinned_bins(freq_hz, response, dc_gain: float | None):
+    """The FRF set with a 0 Hz bin of exactly ``dc_gain`` (None: left as measured)."""
+    f = np.asarray(freq_hz, float)
+    R = np.atleast_2d(np.asarray(response, complex))
+    if dc_gain is None:
+        return f, R
+    if f[0] == 0.0:
+        R = R.copy()
+        R[:, 0] = dc_gain
+        return f, R
+    return np.concatenate([[0.0], f]), np.hstack([np.full((R.shape[0], 1), dc_gain, complex), R])
+
+
+def member_impulses(profile, axis: str) -> np.ndarray:
+    """(N_H, n_taps) impulse response of each measured FRF of the axis, as the twin builds them."""
+    tw = profile.twin
+    if tw.physics == "modal":
+        return np.array([m.impulse(profile.ts_s, tw.n_taps) for m in axis_modal(profile, axis).models])
+    freq, resp = _bins(profile, axis)
+    return _frf.member_impulses(freq, resp, profile.ts_s, tw.n_taps)
+
+
+def draw_impulses(profile, axis: str, rng: np.random.Generator, size: int = 1) -> np.ndarray:
+    """(size, n_taps) plants drawn from the axis's Gaussian impulse response."""
+    tw = profile.twin
+    if tw.physics == "modal" or tw.coef_variance == "ensemble":
+        ir = axis_impulse(profile, axis)
+        z = rng.standard_normal((size, ir.factor.shape[1]))
+        return ir.mean[None, :] + z @ ir.factor.T
+    freq, resp = _bins(profile, axis)
+    return _frf.draw_impulse_responses(freq, resp, profile.ts_s, tw.n_taps, rng, size,
+                                       method=tw.coef_variance)
+
+
+def mean_model(profile, axis: str):
+    """A representative ModalModel of the axis (the members' parameter mean)."""
+    return axis_modal(profile, axis).mean_model()
+
+
+def with_physics(profile, physics: str):
+    """A copy of the profile using ``physics`` (``modal`` | ``bins``)."""
+    return dataclasses.replace(profile, twin=dataclasses.replace(profile.twin, physics=physics))
