@@ -55,14 +55,18 @@ def read_log_columns(path: pathlib.Path, ts_s: float):
 def predict(log, machine, output, no_learn):
     """Predict the actual X/Y positions of LOG's commanded motion with the twin, learning online
     (one sample behind) from the measured columns x, y when the log has them."""
+    from ..twin.extensions import extra_variance_mm2, mean_offsets
     from ..twin.model import axis_twin
 
     prof = load_profile(machine)
     t, xc, yc, xm, ym = read_log_columns(log, prof.ts_s)
     out = [t]
-    for axis, cmd, meas in (("x", xc, xm), ("y", yc, ym)):
+    off = mean_offsets(prof, np.column_stack([xc, yc]))
+    for i, (axis, cmd, meas) in enumerate((("x", xc, xm), ("y", yc, ym))):
         tw = axis_twin(prof, axis)
-        mean, std = tw.run(cmd, meas, learn=(meas is not None and not no_learn))
+        mean, std = tw.run(cmd, meas, learn=(meas is not None and not no_learn),
+                           offset_mm=off[:, i],
+                           extra_var_mm2=extra_variance_mm2(prof.axes[axis].effects))
         out += [mean, std]
     arr = np.column_stack(out)
     with open(output, "w") as fh:
