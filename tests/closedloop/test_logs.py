@@ -143,6 +143,8 @@ def test_too_short_refused(tmp_path):
     with pytest.raises(LogError) as e:
         load_log(p, PROFILE)
     assert "too short" in one_line(e) and "42 weights" in one_line(e)
+    r = CliRunner().invoke(cli, ["diagnose", "--machine", "ender3pro", str(p)])
+    assert r.exit_code == 2 and "too short" in r.output and r.output.count("\n") == 1
     i0, _ = cut_mid_move(cmd, meas, 0.3, 0.3)
     p2 = tmp_path / "short_mid.csv"
     write(p2, cmd[i0:i0 + 560], meas[i0:i0 + 560])
@@ -391,3 +393,4 @@ def test_bench_a_cut_logs_through_the_cli(bench_a, tmp_path):
         assert rec["warmup_samples"] == (530 if name == "log_14.csv" else 0)
         d = json.loads((tmp_path / "d.json").read_text())
         assert set(d["residual_rms_mm"]) == {"x", "y"}
+        assert d["log"]["warmup_samples"] == (530 if name == "log_14.csv" else 0)
