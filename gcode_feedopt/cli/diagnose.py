@@ -39,7 +39,7 @@ def diagnose(log_path, machine, json_path, plot_path, fit_fraction, out_profile,
     d = diagnose_log(log, profile, fit_fraction=fit_fraction)
     out = d.to_dict()
     out["log"] = {"path": log.source, "kind": log.kind, "samples": int(log.cmd_mm.shape[0]),
-                  "ts_s": log.ts_s, **log.info}
+                  "ts_s": log.ts_s, "warmup_samples": int(log.warmup), **log.info}
     rr, ho = d.residual_rms_mm, d.holdout_rms_mm
     click.echo(f"residual RMS  x {rr['x'] * 1e3:.2f} µm   y {rr['y'] * 1e3:.2f} µm")
     for e in d.effects:
