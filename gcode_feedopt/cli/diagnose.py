@@ -53,7 +53,11 @@ def diagnose(log_path, machine, json_path, plot_path, fit_fraction, out_profile,
             click.echo(f"              tie: {tie['kind']} ({tp}) explains the held-out part as "
                        "well; the two are not told apart by this log")
     for ax in ("x", "y"):
-        click.echo(f"held-out RMS  {ax}: {ho['before'][ax] * 1e3:.2f} -> {ho['after'][ax] * 1e3:.2f} µm")
+        line = (f"held-out RMS  {ax}: {ho['before'][ax] * 1e3:.2f} -> {ho['after'][ax] * 1e3:.2f} µm "
+                "(the extended profile)")
+        if "after_fitted" in ho and abs(ho["after_fitted"][ax] - ho["after"][ax]) > 1e-7:
+            line += f", {ho['after_fitted'][ax] * 1e3:.2f} µm with this log's fitted phase"
+        click.echo(line)
     if json_path:
         text = json.dumps(out, indent=2)
         if json_path == "-":

@@ -87,6 +87,7 @@ def test_json_keys():
     e = j["effects"][0]
     assert set(e) >= {"kind", "axis", "params", "confidence"}
     assert e["kind"] == "periodic_time" and 0 <= e["confidence"] <= 1
-    # ranked by explained residual
-    ss = [c.explained_ss for c in d.candidates]
+    # ranked by the sum of squares explained on the fit part; the test's figures reported
+    ss = [c.explained_fit for c in d.candidates]
     assert ss == sorted(ss, reverse=True)
+    assert e["test"]["t_holdout"] > e["test"]["crit_holdout"]
