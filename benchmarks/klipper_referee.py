@@ -161,8 +161,8 @@ def main(argv=None) -> int:
                 ref = recorded["cases"].get(case, {}).get("referee_s", float("nan"))
             rows[case] = {"sha256": sha256(data), "lines": data.count(b"\n"),
                           "referee_s": round(ref, 6), "model_s": round(model, 6)}
-            print(f"{case:28s} referee {ref:10.3f} s  model {model:10.3f} s  "
-                  f"{100 * (model / ref - 1):+7.3f} %", flush=True)
+            print(f"{case:28s} referee {ref:12.6f} s  model {model:12.6f} s  "
+                  f"{100 * (model / ref - 1):+8.4f} %", flush=True)
             if live and a.record and case.endswith("/output"):
                 name = case.split("/")[0]
                 (DATA_DIR / f"{name}.out.gcode.xz").write_bytes(
