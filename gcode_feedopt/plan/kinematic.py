@@ -13,9 +13,13 @@ Limits, per segment:
   executed. Tangential and centripetal parts then add up to at most √2·A on an axis, as on the
   chords of any polyline curve; the twin judges the resulting contour error.
 - junctions: the firmware's own junction rule (Marlin's junction deviation, or Klipper's
-  square-corner velocity mapped to a junction deviation plus its centripetal limit), so a plan
-  never asks for a corner speed the firmware would refuse — the written G-code then runs as
-  planned. Full reversals, E-only moves, dwells, waits and tool changes are exact stops.
+  rules: square-corner velocity per neighbour, its centripetal limit and the extruder's corner
+  velocity), so a plan never asks for a corner speed the firmware would refuse — the written
+  G-code then runs as planned. Full reversals, E-only moves, dwells, waits and tool changes are
+  exact stops.
+- Klipper: also its look-ahead with minimum_cruise_ratio (plan.trapezoid.klipper_lookahead)
+  and its extrude-only limits on retracting moves: the plan is Klipper's own plan
+  (docs/firmware.md).
 """
 
 from __future__ import annotations

@@ -9,11 +9,14 @@ the firmware's. Two models, chosen by the profile's ``firmware.flavour``:
   G2/G3 split into chords of ``mm_per_arc_segment`` like Marlin's plan_arc. When the file sets
   classic jerk (M205 X/Y without J, as PrusaSlicer and Cura write for jerk-configured Marlin),
   the junction speed is the highest at which no axis changes speed by more than its jerk.
-- **Klipper**: look-ahead with square_corner_velocity (mapped to a junction deviation,
-  δ = scv²(√2 − 1)/a) and its centripetal limit ½·L·a·tan(θ/2) on both neighbours;
-  minimum_cruise_ratio (or max_accel_to_decel) caps the peak speed of short moves;
-  SET_VELOCITY_LIMIT (VELOCITY, ACCEL, ACCEL_TO_DECEL, SQUARE_CORNER_VELOCITY,
-  MINIMUM_CRUISE_RATIO) and M204 S/P/T honoured in file order.
+- **Klipper**: klippy's rules (commit 84104bb; docs/firmware.md): one accel (M204 S, or the
+  smaller of M204 P and T; P or T alone, M204 R, M201, M203 and M205 change nothing),
+  SET_VELOCITY_LIMIT (VELOCITY, ACCEL, SQUARE_CORNER_VELOCITY, MINIMUM_CRUISE_RATIO), M220 /
+  M221; Z and extrude-only limits scaled by the move; junctions at each neighbour's own
+  δ·a (δ = scv²(√2 − 1)/accel) and ½·L·a·tan(θ/2), and the extruder's
+  instantaneous_corner_velocity; minimum_cruise_ratio's pseudo-accel look-ahead gives a run of
+  short moves one reduced peak (plan.trapezoid.klipper_lookahead). Real Klipper times the
+  same files to within 1 µs (tests/vm/test_klipper_referee.py).
 
 Both: exact stops at E-only moves, dwells (G4), waits (M400, M109, ...), homing and tool
 changes; firmware retraction (G10/G11) takes retract_mm/retract_speed. Settings found in the
@@ -106,6 +109,18 @@ def _apply_event(lim: _Limits, ev, klipper: bool) -> None:
                 if L in p:
                     j[L.lower()] = float(p[L])
             lim.jerk = j
+    elif n == "SET_VELOCITY_LIMIT":
+        # not a Marlin command; kept from the first model (docs/firmware.md: not followed)
+        if isinstance(p.get("VELOCITY"), float):
+            lim.velocity = p["VELOCITY"]
+        if isinstance(p.get("ACCEL"), float):
+            lim.accel_print = lim.accel_travel = p["ACCEL"]
+        if isinstance(p.get("SQUARE_CORNER_VELOCITY"), float):
+            lim.scv = p["SQUARE_CORNER_VELOCITY"]
+        if isinstance(p.get("MINIMUM_CRUISE_RATIO"), float):
+            lim.min_cruise_ratio = p["MINIMUM_CRUISE_RATIO"]
+        if isinstance(p.get("ACCEL_TO_DECEL"), float) and lim.accel_print > 0:
+            lim.min_cruise_ratio = max(0.0, 1.0 - p["ACCEL_TO_DECEL"] / lim.accel_print)
 
 
 def _positive(p: dict, key: str) -> float | None:

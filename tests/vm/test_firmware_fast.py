@@ -112,6 +112,10 @@ def test_every_event(flavour):
     assert np.any(blocks.stop_after[:-1]) and np.any(blocks.accel != blocks.accel[0])
     if flavour == "marlin":
         assert np.any(np.isfinite(blocks.jerk_v)) and np.any(~np.isfinite(blocks.jerk_v))
+    else:
+        # Klipper's rules all reached: a retraction while travelling, the pseudo-accel, Z
+        assert np.any(blocks.e_ratio < 0) and np.any(blocks.peak_accel < blocks.accel)
+        assert np.any(blocks.accel < 100.0 + 1e-9)
 
 
 @pytest.mark.parametrize("flavour", sorted(PROFILES))
