@@ -161,8 +161,11 @@ def main(argv=None) -> int:
                 ref = recorded["cases"].get(case, {}).get("referee_s", float("nan"))
             rows[case] = {"sha256": sha256(data), "lines": data.count(b"\n"),
                           "referee_s": round(ref, 6), "model_s": round(model, 6)}
+            rec = recorded["cases"].get(case, {})
+            note = ("" if rec.get("sha256") in (None, rows[case]["sha256"])
+                    else "  (not the recorded bytes: --record to update)")
             print(f"{case:28s} referee {ref:12.6f} s  model {model:12.6f} s  "
-                  f"{100 * (model / ref - 1):+8.4f} %", flush=True)
+                  f"{100 * (model / ref - 1):+8.4f} %{note}", flush=True)
             if live and a.record and case.endswith("/output"):
                 name = case.split("/")[0]
                 (DATA_DIR / f"{name}.out.gcode.xz").write_bytes(

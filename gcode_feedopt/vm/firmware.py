@@ -128,6 +128,21 @@ def _positive(p: dict, key: str) -> float | None:
     return float(v) if isinstance(v, float) and v > 0 else None
 
 
+def _klipper_accel_set(ev) -> float | None:
+    """The accel a line sets in Klipper (``M204 S``, the smaller of ``M204 P T``,
+    ``SET_VELOCITY_LIMIT ACCEL``), or None: it sets none (or Klipper refuses it)."""
+    p = ev.params
+    if ev.name == "M204":
+        a = _positive(p, "S")
+        if a is None:
+            pa, ta = _positive(p, "P"), _positive(p, "T")
+            a = None if pa is None or ta is None else min(pa, ta)
+        return a
+    if ev.name == "SET_VELOCITY_LIMIT":
+        return _positive(p, "ACCEL")
+    return None
+
+
 def _apply_event_klipper(lim: _Limits, ev) -> None:
     """Klipper's commands that change the motion (klippy toolhead.py and gcode_move.py):
     ``M204 S`` sets the one acceleration, or ``M204 P.. T..`` the smaller of the two (P or T
@@ -137,18 +152,12 @@ def _apply_event_klipper(lim: _Limits, ev) -> None:
     ``_Limits`` hold the one accel."""
     p = ev.params
     n = ev.name
-    if n == "M204":
-        a = _positive(p, "S")
-        if a is None:
-            pa, ta = _positive(p, "P"), _positive(p, "T")
-            a = None if pa is None or ta is None else min(pa, ta)
-        if a is not None:
-            lim.accel_print = lim.accel_travel = a
-    elif n == "SET_VELOCITY_LIMIT":
+    a = _klipper_accel_set(ev)
+    if a is not None:
+        lim.accel_print = lim.accel_travel = a
+    if n == "SET_VELOCITY_LIMIT":
         if _positive(p, "VELOCITY") is not None:
             lim.velocity = p["VELOCITY"]
-        if _positive(p, "ACCEL") is not None:
-            lim.accel_print = lim.accel_travel = p["ACCEL"]
         v = p.get("SQUARE_CORNER_VELOCITY")
         if isinstance(v, float) and v >= 0:
             lim.scv = v
@@ -316,8 +325,7 @@ def accel_clamp(program, profile, axis_amax_mm_s2: dict) -> AccelClamp | None:
     if klipper:
         file = np.array([[q.accel_print] for q in snaps], dtype=float).reshape(-1, 1)
         cap = np.array([min(axis_amax_mm_s2["x"], axis_amax_mm_s2["y"])])
-        sets = [ev.name == "SET_VELOCITY_LIMIT" and "ACCEL" in ev.params
-                or ev.name == "M204" for ev in program.events]
+        sets = [_klipper_accel_set(ev) is not None for ev in program.events]
     else:
         file = np.array([[q.max_accel[k] for k in "xyz"] for q in snaps],
                         dtype=float).reshape(-1, 3)
