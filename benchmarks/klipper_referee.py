@@ -1,11 +1,12 @@
 """Real Klipper as the referee of the Klipper firmware model (issue 20, point 4).
 
-Six cases: the first 20,000 lines of three real files (prepared: heaters, fans, homing,
+Seven cases: the first 20,000 lines of three real files (prepared: heaters, fans, homing,
 levelling and motors-off lines dropped, as batch-mode Klipper cannot run them), each as sliced
 and as our kinematic output for the referee's printer (tests/vm/data/klipper_referee/
-klipper300.yaml, the same machine as the referee's printer.cfg). Klipper's planner times each
-file in batch mode (../shared/tools/klipper-referee/); our firmware model
-(vm.firmware.estimate_time_s) times the same bytes.
+klipper300.yaml, the same machine as the referee's printer.cfg, plus ``[gcode_arcs]``), and an
+ArcWelder file's arcs as sliced. Klipper's planner times each file in batch mode
+(../shared/tools/klipper-referee/); our firmware model (vm.firmware.estimate_time_s) times the
+same bytes.
 
     # a Klipper tree built by the harness (setup.sh: linux-process MCU dictionary, klippy's
     # python, the timing probe), e.g. from the fetched mirror:
@@ -52,7 +53,12 @@ SOURCES = {
     "cura_benchy": SHARED / "data" / "gcode" / "cura-4.11_ender3_3dbenchy.gcode",
     "prusa_mini_benchy": SHARED / "data" / "gcode" / "prusaslicer-2.6.1_mini_3dbenchy.gcode",
     "butterfly": REPO / "sample_gcode" / "butterfly.gcode",
+    "arcwelder_benchy": SHARED / "data" / "gcode" / "slic3rpe-arcwelder_3dbenchy-arcs.gcode",
 }
+#: the sources whose kinematic output is refereed too (the outputs are stored: issue 20's three)
+WITH_OUTPUT = ("cura_benchy", "prusa_mini_benchy", "butterfly")
+#: added to the harness's printer.cfg: G2/G3 as chords of 1 mm (profile: mm_per_arc_segment)
+ARCS_CFG = "\n[gcode_arcs]\nresolution: 1.0\n"
 #: what batch-mode Klipper cannot run (the harness's prep.py drops the same words)
 STRIP = {"M104", "M109", "M140", "M190", "M105", "M106", "M107", "G28", "G29", "M84"}
 
@@ -126,7 +132,7 @@ def cases(workdir: pathlib.Path | None, only: str | None = None):
         data = prepare(src)
         if not only or only in f"{name}/original":
             yield f"{name}/original", data
-        if only and only not in f"{name}/output":
+        if name not in WITH_OUTPUT or (only and only not in f"{name}/output"):
             continue
         if workdir is not None:
             yield f"{name}/output", our_output(data, workdir, name)
@@ -140,7 +146,8 @@ def main(argv=None) -> int:
     ap.add_argument("--klipper", help="Klipper tree built by the harness's setup.sh")
     ap.add_argument("--python", help="klippy's python (setup.sh: DEST/venv/bin/python)")
     ap.add_argument("--commit", default="", help="Klipper commit, if the tree has no .git")
-    ap.add_argument("--cfg", default=str(HARNESS / "printer.cfg.in"))
+    ap.add_argument("--cfg", default=str(HARNESS / "printer.cfg.in"),
+                    help="the harness's printer.cfg template ([gcode_arcs] is added)")
     ap.add_argument("--record", action="store_true", help="rewrite the reference data")
     ap.add_argument("--only", help="only the cases whose name contains this")
     a = ap.parse_args(argv)
@@ -152,11 +159,14 @@ def main(argv=None) -> int:
     rows = {}
     with tempfile.TemporaryDirectory(prefix="referee_") as tmp:
         work = pathlib.Path(tmp)
+        cfg_text = pathlib.Path(a.cfg).read_text() + ARCS_CFG
+        cfg = work / "printer.cfg.in"
+        cfg.write_text(cfg_text)
         for case, data in cases(work if live else None, a.only):
             model = model_time_s(data, profile)
             if live:
                 ref = referee_time_s(data, work, case.replace("/", "_"), a.klipper, a.python,
-                                     pathlib.Path(a.cfg))["elapsed_s"]
+                                     cfg)["elapsed_s"]
             else:
                 ref = recorded["cases"].get(case, {}).get("referee_s", float("nan"))
             rows[case] = {"sha256": sha256(data), "lines": data.count(b"\n"),
@@ -179,7 +189,7 @@ def main(argv=None) -> int:
             "klipper_commit": a.commit or klipper_commit(a.klipper),
             "harness": "../shared/tools/klipper-referee (klipper_time.py, timing_probe.py "
                        "with suppress_batch_runout)",
-            "printer_cfg": pathlib.Path(a.cfg).read_text(),
+            "printer_cfg": cfg_text,
             "profile": str(PROFILE.relative_to(REPO)),
             "lines": LINES,
             "strip": sorted(STRIP),

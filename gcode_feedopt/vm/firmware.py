@@ -481,7 +481,7 @@ def _build_blocks_reference(program, profile) -> Blocks:
         if mv.arc is not None:
             arc = mv.arc
             planar = abs(arc.sweep_rad) * arc.radius_mm
-            nseg = max(1, int(math.ceil(planar / fw.mm_per_arc_segment)))
+            nseg = _arc_segments(planar, mv.end_mm[2] - mv.start_mm[2], fw, klipper)
             th0 = math.atan2(mv.start_mm[1] - arc.center_mm[1], mv.start_mm[0] - arc.center_mm[0])
             for j in range(1, nseg + 1):
                 u = j / nseg
@@ -585,6 +585,14 @@ def _build_blocks_reference(program, profile) -> Blocks:
                   jerk_v, e_ratio if klipper else None, fw.instantaneous_corner_velocity_mm_s)
 
 
+def _arc_segments(planar_mm: float, dz_mm: float, fw, klipper: bool) -> int:
+    """Chords of an arc: Marlin's ceil(planar length / mm_per_arc_segment); Klipper's
+    [gcode_arcs] floor(helix length / resolution) (at least one)."""
+    if klipper:
+        return max(1, int(math.floor(math.hypot(planar_mm, dz_mm) / fw.mm_per_arc_segment)))
+    return max(1, int(math.ceil(planar_mm / fw.mm_per_arc_segment)))
+
+
 def _arc_rows(mv, lim: _Limits, fw, klipper: bool, feed: float):
     """The chords of one arc move as rows of :func:`_build_blocks_reference` (its code for
     arcs, unchanged), or None where the arc is too short to move (never for real arcs; the
@@ -592,7 +600,7 @@ def _arc_rows(mv, lim: _Limits, fw, klipper: bool, feed: float):
     arc = mv.arc
     pts = [np.asarray(mv.start_mm, float)]
     planar = abs(arc.sweep_rad) * arc.radius_mm
-    nseg = max(1, int(math.ceil(planar / fw.mm_per_arc_segment)))
+    nseg = _arc_segments(planar, mv.end_mm[2] - mv.start_mm[2], fw, klipper)
     th0 = math.atan2(mv.start_mm[1] - arc.center_mm[1], mv.start_mm[0] - arc.center_mm[0])
     for j in range(1, nseg + 1):
         u = j / nseg

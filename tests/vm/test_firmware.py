@@ -158,7 +158,8 @@ def test_klipper_extruder_corner_velocity():
     b = build_blocks(p, K0)
     np.testing.assert_allclose(b.e_ratio, [0.05, 0.0])
     vj = 20.0
-    half = (50 - (100 ** 2 - vj ** 2) / 6000 - 100 ** 2 / 6000) / 100 + (100 - vj) / 3000 + 100 / 3000
+    half = ((50 - (100 ** 2 - vj ** 2) / 6000 - 100 ** 2 / 6000) / 100
+            + (100 - vj) / 3000 + 100 / 3000)
     assert estimate_time_s(p, K0) == pytest.approx(2 * half, rel=1e-12)
     icv2 = dataclasses.replace(K0, firmware=dataclasses.replace(
         K0.firmware, instantaneous_corner_velocity_mm_s=2.0))
