@@ -184,7 +184,7 @@ def main(argv=None) -> int:
         if not live:
             ap.error("--record needs --klipper and --python")
         doc = {
-            "what": "Klipper batch-mode planner times (referee) of six G-code cases, and our "
+            "what": "Klipper batch-mode planner times (referee) of seven G-code cases, and our "
                     "Klipper firmware model's times when recorded; benchmarks/klipper_referee.py",
             "klipper_commit": a.commit or klipper_commit(a.klipper),
             "harness": "../shared/tools/klipper-referee (klipper_time.py, timing_probe.py "
