@@ -224,6 +224,8 @@ def parse_profile(data, origin: str, base_dir: pathlib.Path | None) -> MachinePr
         max_lines_per_s=fs.getfloat("max_lines_per_s", above=1, maxval=1e6),
         retract_mm=fs.getfloat("retract_mm", 0.0, minval=0, maxval=50),
         retract_speed_mm_s=fs.getfloat("retract_speed_mm_s", 30.0, above=0, maxval=1000),
+        instantaneous_corner_velocity_mm_s=fs.getfloat("instantaneous_corner_velocity_mm_s",
+                                                       1.0, minval=0, maxval=1000),
     )
     fs.check_unknown()
     axs = top.section("axes")
@@ -324,6 +326,8 @@ def profile_to_dict(profile: MachineProfile, frf_paths: dict | None = None) -> d
                  "physics": T.physics, "dc_gain": T.dc_gain},
         "provenance": profile.provenance,
     }
+    if F.flavour == "klipper":
+        d["firmware"]["instantaneous_corner_velocity_mm_s"] = F.instantaneous_corner_velocity_mm_s
     if T.priors:
         d["twin"]["priors"] = {a: _prior_to_yaml(p) for a, p in T.priors.items()}
     for a, ax in profile.axes.items():
