@@ -26,6 +26,24 @@ class LogError(FeedOptError):
     """A sensor log is malformed, truncated, from another machine, or has no motion."""
 
 
+class OutputError(FeedOptError):
+    """An output cannot be written: missing folder, not a regular file, the input itself,
+    read-only, full disk (gcode_feedopt.outputs)."""
+
+
+class UsageError(FeedOptError):
+    """An option value out of range or options that contradict each other."""
+
+
+class Interrupted(BaseException):
+    """SIGINT or SIGTERM arrived (a BaseException, like KeyboardInterrupt, so no ``except
+    Exception`` swallows it); ``signum`` is the signal. The CLI exits 128 + signum."""
+
+    def __init__(self, signum: int):
+        super().__init__(signum)
+        self.signum = signum
+
+
 class VerifyError(FeedOptError):
     """The output failed a safety check; nothing was written."""
 

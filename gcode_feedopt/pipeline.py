@@ -13,13 +13,16 @@ from dataclasses import dataclass
 from .errors import AlreadyProcessedError, FeedOptError, GCodeError
 from .gcode.path import build_path
 from .gcode.reader import gc_paused, read_file
-from .gcode.verify import atomic_write, verify
+from .gcode.verify import verify
 from .gcode.writer import write, write_trajectory_csv
 from .plan.kinematic import effective_limits, plan_kinematic, plan_trapezoids, writer_accel
+from .outputs import check_input, check_outputs, output_file, output_path, write_bytes
 from .report import Report
 from .vm import firmware
 
 METHODS = ("kinematic", "conservative", "pb", "dd", "pidd", "oracle")
+#: file types --plot can write (matplotlib's format from the suffix)
+PLOT_SUFFIXES = (".png", ".pdf", ".svg")
 
 
 @dataclass
@@ -100,10 +103,24 @@ def execute_check(out_program, profile, tol_mm: float) -> dict:
             "rms_gamma_mm": round(m.rms_gamma_mm, 6)}
 
 
+def check_run_outputs(in_path, out_path, opts: Options, extra: dict | None = None,
+                      inputs=()) -> dict:
+    """Check the input and every output of a run before anything is read or written
+    (outputs.check_outputs); ``extra``: more option -> path (e.g. ``--report``)."""
+    in_path = check_input(in_path, "input")
+    out_path = pathlib.Path(out_path) if out_path is not None else in_path
+    outs = {"-o": None if opts.dry_run else out_path,
+            "--trajectory": None if opts.dry_run else opts.trajectory,
+            "--plot": opts.plot, **(extra or {})}
+    return check_outputs(outs, inputs=[in_path, *inputs], in_place=["-o"],
+                         suffixes={"--plot": PLOT_SUFFIXES})
+
+
 def optimize_file(in_path, out_path, profile, opts: Options) -> Report:
     """Optimize ``in_path`` and write ``out_path`` (may be the same file: in place)."""
     in_path = pathlib.Path(in_path)
     out_path = pathlib.Path(out_path) if out_path is not None else in_path
+    targets = check_run_outputs(in_path, out_path, opts)
     wall = {}
     t0 = time.perf_counter()
     program = read_for(in_path, profile)
@@ -152,20 +169,20 @@ def optimize_file(in_path, out_path, profile, opts: Options) -> Report:
         executed = execute_check(out_program, profile,
                                  opts.tolerance_mm or profile.limits.tolerance_mm)
         wall["execute"] = time.perf_counter() - t0
-    if not opts.dry_run:
-        t0 = time.perf_counter()
-        atomic_write(out_path, result.data)
-        if opts.trajectory:
-            tmp = pathlib.Path(opts.trajectory)
-            with open(tmp, "wb") as fh:
-                write_trajectory_csv(fh, sched, path)
-        wall["save"] = time.perf_counter() - t0
     if opts.plot:
         from .plot import plot_run
 
-        plot_run(path, sched, opts.plot, title=f"{in_path.name}: {sched.method} on {profile.name}",
-                 tolerance_mm=opts.tolerance_mm or profile.limits.tolerance_mm,
-                 predicted_error_mm=sched.info.get("predicted_bound_mm"))
+        with output_path(targets["--plot"]) as tmp:
+            plot_run(path, sched, tmp, title=f"{in_path.name}: {sched.method} on {profile.name}",
+                     tolerance_mm=opts.tolerance_mm or profile.limits.tolerance_mm,
+                     predicted_error_mm=sched.info.get("predicted_bound_mm"))
+    if not opts.dry_run:
+        t0 = time.perf_counter()
+        if opts.trajectory:  # first: the G-code is the last file replaced
+            with output_file(targets["--trajectory"]) as fh:
+                write_trajectory_csv(fh, sched, path)
+        write_bytes(targets["-o"], result.data)
+        wall["save"] = time.perf_counter() - t0
     info = sched.info
     rep = Report(
         input=str(in_path), output=None if opts.dry_run else str(out_path),
