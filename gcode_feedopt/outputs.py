@@ -32,6 +32,9 @@ from typing import Iterable, Iterator, Mapping
 
 from .errors import OutputError
 
+#: the name that means standard output
+STDOUT = "-"
+
 #: temporary files this process has open (removed by ``remove_temps`` on a fatal signal)
 _ACTIVE_TEMPS: set[str] = set()
 
@@ -165,8 +168,8 @@ def check_output(path, option: str = "output", *, inputs: Iterable = (),
             except OSError:
                 continue
             if _same(st, ist) and not in_place:
-                raise OutputError(f"{lab}{path}: is the input file {inp}; write the "
-                                  f"{option if option != 'output' else 'output'} to another file")
+                raise OutputError(f"{lab}{path}: is the input file {inp}; choose another "
+                                  "file for this output")
     if _read_only_fs(folder):
         raise OutputError(f"{lab}{path}: read-only file system; write to another folder")
     if not os.access(folder, os.W_OK | os.X_OK):
@@ -191,14 +194,20 @@ def check_output(path, option: str = "output", *, inputs: Iterable = (),
 def check_outputs(outputs: Mapping[str, object], *, inputs: Iterable = (),
                   in_place: Iterable[str] = (), suffixes: Mapping[str, Iterable[str]] | None = None
                   ) -> dict[str, Target]:
-    """``check_output`` for each ``option -> path`` (None and ``-`` (stdout) skipped), and no
-    two outputs on one file. Returns option -> Target for the files."""
+    """``check_output`` for each ``option -> path`` (None skipped), no two outputs on one
+    file, at most one on stdout. ``-`` means stdout, except for options with ``suffixes``
+    (PNGs, profiles: not text). Returns option -> Target (or ``"-"``)."""
     inputs = [i for i in inputs if i is not None]
     in_place = set(in_place)
     suffixes = suffixes or {}
     out: dict[str, Target] = {}
     for option, path in outputs.items():
-        if path is None or os.fspath(path) == "-":
+        if path is None:
+            continue
+        if is_stdout(path):
+            if option in suffixes:
+                raise OutputError(f"{option}: '-' (stdout) is not possible for this output; "
+                                  f"give a file name ending in {' or '.join(suffixes[option])}")
             continue
         out[option] = check_output(path, option, inputs=inputs, in_place=option in in_place,
                                    suffixes=suffixes.get(option))
@@ -209,11 +218,18 @@ def check_outputs(outputs: Mapping[str, object], *, inputs: Iterable = (),
             raise OutputError(f"{seen[key]} and {option} both write {t.path}; give each its own "
                               "file")
         seen[key] = option
-    stdout = [o for o, p in outputs.items() if p is not None and os.fspath(p) == "-"]
+    stdout = [o for o, p in outputs.items() if is_stdout(p)]
     if len(stdout) > 1:
         raise OutputError(f"{' and '.join(stdout)} both write to stdout ('-'); send one of them "
                           "to a file")
+    for o in stdout:
+        out[o] = STDOUT
     return out
+
+
+def is_stdout(path) -> bool:
+    """True for ``-`` (stdout)."""
+    return path is not None and not isinstance(path, Target) and os.fspath(path) == STDOUT
 
 
 def _umask() -> int:
@@ -299,11 +315,32 @@ def _finish(tmp: str, t: Target) -> None:
     _fsync_dir(t.real.parent)
 
 
+def _stdout(text: bool):
+    import io
+    import sys
+
+    sys.stdout.flush()
+    raw = sys.stdout.buffer
+    fh = io.TextIOWrapper(raw, encoding="utf-8", newline="\n") if text else raw
+    try:
+        yield fh
+    finally:
+        if text:
+            try:
+                fh.flush()
+            finally:
+                fh.detach()  # never close stdout
+        raw.flush()
+
+
 @contextlib.contextmanager
 def output_file(target, option: str = "output", *, text: bool = False) -> Iterator:
     """Open a temporary file for ``target`` (a path or a ``Target``); on a clean exit it is
     fsynced and renamed over the target, on any exception removed. Yields a binary file,
-    or a UTF-8 text file with ``\\n`` line ends when ``text``."""
+    or a UTF-8 text file with ``\\n`` line ends when ``text``. ``-`` writes to stdout."""
+    if is_stdout(target):
+        yield from _stdout(text)
+        return
     t = _as_target(target, option)
     try:
         fd, tmp = tempfile.mkstemp(prefix=_temp_prefix(t.real), suffix=".tmp", dir=t.real.parent)

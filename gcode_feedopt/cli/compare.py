@@ -3,6 +3,7 @@ seed; the paper's Table 1 columns as a table (and JSON), Fig. 12 as a PNG."""
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import time
@@ -55,7 +56,7 @@ def format_table(rows) -> str:
 @click.option("--vmax", type=click.FloatRange(min=0, min_open=True), default=None, help="V_max, mm/s.")
 @click.option("--amax", type=click.FloatRange(min=0, min_open=True), default=None, help="A_max, mm/s².")
 @click.option("--offline", is_flag=True, help="Do not learn between windows (dd/pidd keep their priors).")
-@click.option("--json", "json_path", type=click.Path(dir_okay=False), help="Write the rows as JSON.")
+@click.option("--json", "json_path", type=click.Path(dir_okay=False), help="Write the rows as JSON ('-' for stdout).")
 @click.option("--plot", "png", type=click.Path(dir_okay=False),
               help="Write the paper's Fig. 12: feed, acceleration, contour error, γ, prediction error.")
 def compare(gcode, machine, methods, seed, effects, nominal, tolerance, stringency, vmax, amax,
@@ -70,37 +71,42 @@ def compare(gcode, machine, methods, seed, effects, nominal, tolerance, stringen
     """
     from pathlib import Path
 
-    from ..errors import FeedOptError
     from ..optimize import METHODS
     from ..optimize.compare import run_compare
-    from ..pipeline import path_for, read_for
+    from ..outputs import check_input, check_outputs, output_file, output_path
+    from ..pipeline import PLOT_SUFFIXES, path_for, read_for
     from ..profile import load_profile
     from ..vm.plant import Plant
+    from .options import profile_files
 
     chosen = [m.strip() for m in methods.split(",") if m.strip()]
     bad = [m for m in chosen if m not in METHODS]
-    if bad:
-        raise click.UsageError(f"--methods: unknown {', '.join(bad)}; use some of {', '.join(METHODS)}")
-    try:
-        profile = load_profile(machine)
-        tol = tolerance or profile.limits.tolerance_mm
-        eta = stringency or profile.limits.stringency
-        path = path_for(read_for(Path(gcode), profile), profile)
-        plant = Plant(profile, seed=seed, effects=effects, nominal=nominal)
-        t0 = time.perf_counter()
-        runs = run_compare(path, profile, plant, methods=chosen, tolerance_mm=tol,
-                           stringency=eta, vmax_mm_s=vmax, amax_mm_s2=amax, online=not offline)
-    except FeedOptError as exc:
-        raise click.ClickException(str(exc)) from None
+    if bad or not chosen:
+        raise click.BadParameter(f"unknown {', '.join(bad)}; use some of {', '.join(METHODS)}"
+                                 if bad else f"no method given; use some of {', '.join(METHODS)}",
+                                 param_hint="'--methods'")
+    profile = load_profile(machine)
+    check_input(gcode)
+    targets = check_outputs({"--json": json_path, "--plot": png},
+                            inputs=[gcode, *profile_files(machine)],
+                            suffixes={"--plot": PLOT_SUFFIXES})
+    tol = tolerance or profile.limits.tolerance_mm
+    eta = stringency or profile.limits.stringency
+    path = path_for(read_for(Path(gcode), profile), profile)
+    plant = Plant(profile, seed=seed, effects=effects, nominal=nominal)
+    t0 = time.perf_counter()
+    runs = run_compare(path, profile, plant, methods=chosen, tolerance_mm=tol,
+                       stringency=eta, vmax_mm_s=vmax, amax_mm_s2=amax, online=not offline)
     rows = [r.row() for r in runs]
-    click.echo(f"{os.path.basename(gcode)} on {profile.name} ({'nominal' if nominal else 'drawn'} plant, "
+    say = functools.partial(click.echo, err=json_path == "-")  # keep stdout pure JSON then
+    say(f"{os.path.basename(gcode)} on {profile.name} ({'nominal' if nominal else 'drawn'} plant, "
                f"seed {seed}; E_max {tol} mm, η {eta}"
                + (", effects: " + " ".join(e.to_spec() for e in effects) if effects else "")
                + f"; {'offline' if offline else 'online learning'})")
-    click.echo(format_table(rows))
-    click.echo(f"total {time.perf_counter() - t0:.1f} s")
+    say(format_table(rows))
+    say(f"total {time.perf_counter() - t0:.1f} s")
     if json_path:
-        with open(json_path, "w", encoding="utf-8") as fh:
+        with output_file(targets["--json"], text=True) as fh:
             json.dump({"file": os.fspath(gcode), "machine": profile.name, "seed": seed,
                        "plant": "nominal" if nominal else "draw", "tolerance_mm": tol,
                        "stringency": eta, "effects": [e.to_dict() for e in effects],
@@ -109,5 +115,6 @@ def compare(gcode, machine, methods, seed, effects, nominal, tolerance, stringen
     if png:
         from ..plot import plot_compare
 
-        plot_compare(runs, png, tolerance_mm=tol,
-                     title=f"{os.path.basename(gcode)} on {profile.name}, η {eta}")
+        with output_path(targets["--plot"]) as tmp:
+            plot_compare(runs, tmp, tolerance_mm=tol,
+                         title=f"{os.path.basename(gcode)} on {profile.name}, η {eta}")

@@ -34,7 +34,19 @@ def diagnose(log_path, machine, json_path, plot_path, fit_fraction, out_profile,
     from ..closedloop.logs import load_log
     from ..profile import load_profile
 
+    from ..outputs import check_input, check_outputs, output_path, write_text
+    from ..pipeline import PLOT_SUFFIXES
+    from ..profile.io import check_profile_output
+    from .options import profile_files
+
     profile = load_profile(machine)
+    check_input(log_path)
+    inputs = [log_path, *profile_files(machine)]
+    targets = check_outputs({"--json": json_path, "--plot": plot_path, "-o": out_profile},
+                            inputs=inputs, suffixes={"--plot": PLOT_SUFFIXES,
+                                                     "-o": (".yaml", ".yml")})
+    if out_profile:
+        check_profile_output(out_profile, "-o", inputs)
     log = load_log(log_path, profile, raw_axis=raw_axis)
     d = diagnose_arrays(log.cmd_mm, log.pos_mm, log.ts_s, nominal_impulse(profile),
                         fit_fraction=fit_fraction)
@@ -55,8 +67,7 @@ def diagnose(log_path, machine, json_path, plot_path, fit_fraction, out_profile,
         if json_path == "-":
             click.echo(text)
         else:
-            with open(json_path, "w") as f:
-                f.write(text + "\n")
+            write_text(targets["--json"], text + "\n")
     if out_profile:
         import dataclasses
 
@@ -70,4 +81,5 @@ def diagnose(log_path, machine, json_path, plot_path, fit_fraction, out_profile,
     if plot_path:
         from ..closedloop.diagnose_plot import plot_diagnosis
 
-        plot_diagnosis(plot_path, d, log.ts_s, title=str(log_path))
+        with output_path(targets["--plot"]) as tmp:
+            plot_diagnosis(tmp, d, log.ts_s, title=str(log_path))

@@ -21,8 +21,12 @@ from ..identify.excitation import GENERATORS
 from ..identify.raw import analyse_raw, frf_rows
 from ..identify.readers import detect_kind, read_frf, read_raw, read_spectra, read_uff58
 from ..identify.spectra import BAND_HZ, FREQ_SPREAD, GRID_HZ, ZETA_SPREAD, fit_spectrum, widened_frf_set
+from ..outputs import check_input, check_outputs, output_path
+from ..pipeline import PLOT_SUFFIXES
 from ..profile import load_profile, save_profile
+from ..profile.io import check_profile_output
 from ..profile.schema import AxisModel, FRFSet, Mode
+from .options import profile_files
 
 #: a fit whose log-magnitude RMS residual exceeds this is flagged as poor
 POOR_FIT_RMS = 0.5
@@ -160,6 +164,12 @@ def identify(x_files, y_files, base, n_modes, output, plot_path, excitation, fre
         raise click.UsageError("--freq-start/--freq-end/--hz-per-sec/--accel-per-hz/--sweeping-* "
                                "need --excitation legacy or current")
     base_p = load_profile(base)
+    inputs = [*x_files, *y_files, *profile_files(base)]
+    for f in inputs:
+        check_input(f)
+    check_profile_output(output, "-o", inputs)
+    plot_t = check_outputs({"-o": output, "--plot": plot_path}, inputs=inputs,
+                           suffixes={"-o": (".yaml", ".yml"), "--plot": PLOT_SUFFIXES}).get("--plot")
     axes = dict(base_p.axes)
     panels = {}
     for axis, files in (("x", x_files), ("y", y_files)):
@@ -175,13 +185,11 @@ def identify(x_files, y_files, base, n_modes, output, plot_path, excitation, fre
     out = pathlib.Path(output)
     new = dataclasses.replace(base_p, name=out.stem, axes=axes, provenance=prov, twin=twin,
                               source_path=None)
-    try:
-        save_profile(new, out)
-    except OSError as exc:
-        raise ProfileError(f"{out}: cannot write ({exc.strerror})") from None
+    save_profile(new, out)
     click.echo(f"wrote {out}")
     if plot_path:
         from ..identify.identify_plot import plot_fits
 
-        plot_fits(plot_path, panels)
+        with output_path(plot_t) as tmp:
+            plot_fits(tmp, panels)
         click.echo(f"wrote {plot_path}")

@@ -10,6 +10,7 @@ import click
 from ..errors import FeedOptError
 from ..pipeline import METHODS, Options, optimize_file
 from ..profile import load_profile
+from .options import profile_files
 
 
 @click.command("optimize")
@@ -88,9 +89,3 @@ def _run(gcode, output, machine, method, tolerance, stringency, vmax, amax, mode
         click.echo(rep.summary(), err=True)
     sys.stderr.flush()
 
-
-def profile_files(machine: str) -> list[pathlib.Path]:
-    """The profile file ``--machine`` names, when it is a file (an input no output may
-    replace)."""
-    p = pathlib.Path(machine)
-    return [p] if p.suffix.lower() in (".yaml", ".yml") and p.is_file() else []

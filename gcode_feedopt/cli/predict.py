@@ -50,14 +50,18 @@ def read_log_columns(path: pathlib.Path, ts_s: float):
 @click.argument("log", type=click.Path(dir_okay=False, path_type=pathlib.Path))
 @click.option("--machine", "-m", required=True, help="Built-in profile or profile .yaml.")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, path_type=pathlib.Path),
-              help="Write t,x_mean,x_std,y_mean,y_std here.")
+              help="Write t,x_mean,x_std,y_mean,y_std here ('-' for stdout).")
 @click.option("--no-learn", is_flag=True, help="Do not learn from the measured columns.")
 def predict(log, machine, output, no_learn):
     """Predict the actual X/Y positions of LOG's commanded motion with the twin, learning online
     (one sample behind) from the measured columns x, y when the log has them."""
+    from ..outputs import check_input, check_outputs, output_file
     from ..twin.model import axis_twin
+    from .options import profile_files
 
     prof = load_profile(machine)
+    check_input(log)
+    target = check_outputs({"-o": output}, inputs=[log, *profile_files(machine)])["-o"]
     t, xc, yc, xm, ym = read_log_columns(log, prof.ts_s)
     out = [t]
     for axis, cmd, meas in (("x", xc, xm), ("y", yc, ym)):
@@ -65,7 +69,7 @@ def predict(log, machine, output, no_learn):
         mean, std = tw.run(cmd, meas, learn=(meas is not None and not no_learn))
         out += [mean, std]
     arr = np.column_stack(out)
-    with open(output, "w") as fh:
+    with output_file(target, text=True) as fh:
         fh.write("t,x_mean,x_std,y_mean,y_std\n")
         np.savetxt(fh, arr, fmt=["%.6f", "%.6f", "%.6f", "%.6f", "%.6f"], delimiter=",")
     click.echo(f"predict: {len(t)} samples -> {output}", err=True)

@@ -105,8 +105,8 @@ def _parse_effects(ctx, param, values):
 @click.option("--effect", "effects", multiple=True, callback=_parse_effects, metavar="SPEC",
               help="Unknown effect to plant, e.g. sinusoid:axis=x,amp_mm=0.05,freq_hz=116.7 "
                    "(repeatable; kinds: sinusoid, " + ", ".join(fx.EFFECT_TYPES) + ").")
-@click.option("--log", "log_path", type=click.Path(dir_okay=False),
-              help="Write the encoder log (t,x_cmd,y_cmd,x,y,z_cmd,z,e_cmd) here.")
+@click.option("--log", "log_path", type=click.Path(dir_okay=False, allow_dash=False),
+              help="Write the encoder log (t,x_cmd,y_cmd,x,y,z_cmd,z,e_cmd) here ('-' for stdout).")
 @click.option("--report", "report_path", type=click.Path(dir_okay=False),
               help="Write the metrics as JSON here ('-' for stdout).")
 @click.option("--tolerance", "tol_mm", type=click.FloatRange(min=0, min_open=True),
@@ -124,22 +124,27 @@ def simulate(gcode, machine, seed, effects, log_path, report_path, tol_mm, conto
     gcode-feedopt simulate part.gcode --machine ender3pro --log part.csv --report part.json
     gcode-feedopt simulate part.gcode -m ender3pro --seed 3 --effect backlash:axis=x,magnitude_mm=0.05
     """
+    from ..outputs import check_input, check_outputs, write_text
     from ..profile import load_profile
     from ..vm.log import write_log
+    from .options import profile_files
 
     t_start = time.perf_counter()
     profile = load_profile(machine)
+    check_input(gcode)
+    targets = check_outputs({"--log": log_path, "--report": report_path},
+                            inputs=[gcode, *profile_files(machine)])
     res = simulate_file(gcode, profile, seed=seed, effects=effects, tol_mm=tol_mm, contour_on=contour_on,
                         nominal=nominal)
     if log_path:
         t0 = time.perf_counter()
         tr, out = res.trajectory, res.output
-        write_log(log_path, tr.t_s, tr.pos_mm, out.measured_mm, tr.e_mm)
+        write_log(targets["--log"], tr.t_s, tr.pos_mm, out.measured_mm, tr.e_mm)
         res.timings_s["log"] = time.perf_counter() - t0
     wall = time.perf_counter() - t_start
     m = res.metrics
     if not quiet:
-        err = report_path == "-"  # keep stdout pure JSON then
+        err = "-" in (report_path, log_path)  # keep stdout pure JSON / CSV then
         click.echo(f"{os.path.basename(gcode)} on {profile.name} ({'nominal' if nominal else 'drawn'} plant, seed {seed}"
                    + (", effects: " + " ".join(e.to_spec() for e in effects) if effects else "") + ")", err=err)
         click.echo(m.summary(), err=err)
@@ -160,5 +165,4 @@ def simulate(gcode, machine, seed, effects, log_path, report_path, tol_mm, conto
         if report_path == "-":
             sys.stdout.write(text)
         else:
-            with open(report_path, "w") as f:
-                f.write(text)
+            write_text(targets["--report"], text)

@@ -65,7 +65,9 @@ def run_batch(folder: pathlib.Path, outdir: pathlib.Path | None, machine: str, o
     """Process every G-code file in ``folder``; results in file order."""
     files = find_jobs(folder)
     if outdir is not None:
-        outdir.mkdir(parents=True, exist_ok=True)
+        from ..outputs import make_output_folder
+
+        make_output_folder(outdir, "-o")  # the output folder itself; its parent must exist
     results: dict[str, JobResult] = {}
     # the jobs are the parallelism: a twin method inside a job plans in one process unless
     # the user set GCODE_FEEDOPT_JOBS (optimize/parallel.py)

@@ -44,8 +44,10 @@ def read_frf_csv(path: pathlib.Path) -> tuple[np.ndarray, np.ndarray]:
 
 def write_frf_csv(path: pathlib.Path, freq_hz: np.ndarray, response: np.ndarray) -> None:
     """Write one FRF file, 12 significant digits (a round trip is exact to 1e-12 relative)."""
+    from ..outputs import output_file  # temp + fsync + os.replace, no debris on any error
+
     rows = np.column_stack([freq_hz, response.real, response.imag])
-    with open(path, "w", newline="\n") as fh:
+    with output_file(path, text=True) as fh:
         fh.write(FRF_HEADER + "\n")
         for r in rows:
             fh.write(f"{float(r[0]):.12g},{float(r[1]):.12g},{float(r[2]):.12g}\n")
