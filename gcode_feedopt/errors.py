@@ -35,9 +35,10 @@ class UsageError(FeedOptError):
     """An option value out of range or options that contradict each other."""
 
 
-class Interrupted(BaseException):
-    """SIGINT or SIGTERM arrived (a BaseException, like KeyboardInterrupt, so no ``except
-    Exception`` swallows it); ``signum`` is the signal. The CLI exits 128 + signum."""
+class Interrupted(KeyboardInterrupt):
+    """SIGINT, SIGTERM or SIGHUP arrived (gcode_feedopt.procs); a KeyboardInterrupt, so the
+    same cleanup runs for all three and no ``except Exception`` swallows it. ``signum`` is the
+    signal; the CLI exits 128 + signum."""
 
     def __init__(self, signum: int):
         super().__init__(signum)

@@ -68,6 +68,16 @@ class FeedOptGroup(click.Group):
         except FeedOptError as exc:
             click.echo(f"gcode-feedopt: error: {exc}", err=True)
             ctx.exit(exc.exit_code)
+        except KeyboardInterrupt as exc:  # Ctrl-C, SIGTERM, SIGHUP (procs.install_handlers)
+            from ..outputs import remove_temps
+            from ..procs import acknowledge, signal_name
+
+            acknowledge()
+            remove_temps()
+            signum = getattr(exc, "signum", 2)
+            click.echo(f"gcode-feedopt: stopped by {signal_name(signum)}; files not yet "
+                       "written are untouched, no temporary file is left", err=True)
+            ctx.exit(128 + signum)
 
 
 @click.group(cls=FeedOptGroup, context_settings={"help_option_names": ["-h", "--help"]})
@@ -91,4 +101,7 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
 def main(argv: list[str] | None = None) -> None:
     """Console-script entry point."""
     warnings.showwarning = _show_warning
+    from ..procs import install_handlers
+
+    install_handlers()
     cli.main(args=argv if argv is not None else sys.argv[1:], prog_name="gcode-feedopt")

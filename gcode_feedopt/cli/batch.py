@@ -41,11 +41,18 @@ def batch(folder, outdir, jobs, machine, method, vmax, amax, use_slicer_feed, fo
         if tty:
             click.echo(f"\r[{done[0]}/{total}] {r.file[:50]:50s}", err=True, nl=False)
 
-    results = run_batch(folder, outdir, machine, opts, jobs, progress)
+    results, signum = run_batch(folder, outdir, machine, opts, jobs, progress)
     if tty:
         click.echo("", err=True)
     click.echo(table(results))
     failed = [r for r in results if r.status == "failed"]
+    if signum is not None:
+        from ..procs import signal_name
+
+        stopped = sum(r.status == "interrupted" for r in results)
+        click.echo(f"gcode-feedopt: batch stopped by {signal_name(signum)}: {stopped} of "
+                   f"{len(results)} files not written (untouched), {len(failed)} failed", err=True)
+        sys.exit(128 + signum)
     if failed:
         click.echo(f"batch: {len(failed)} of {len(results)} failed", err=True)
         sys.exit(1)

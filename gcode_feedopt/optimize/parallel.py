@@ -18,9 +18,10 @@ from __future__ import annotations
 
 import multiprocessing as mp
 import os
-from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
+
+from ..procs import worker_pool
 
 #: history handed to a worker, samples (≥ the twin's n_taps + feature lags)
 HISTORY_PAD = 64
@@ -114,8 +115,8 @@ def run_parallel(ctx: dict, n_workers: int):
                ctx["path"].position(fs[:1])[0, :2])
     _CTX = ctx
     try:
-        with ProcessPoolExecutor(max_workers=n_workers,
-                                 mp_context=mp.get_context("fork")) as pool:
+        # workers stopped on Ctrl-C/SIGTERM/any error, never left blocked (procs.py)
+        with worker_pool(n_workers, mp.get_context("fork")) as pool:
             parts = list(pool.map(_run_chunk, [a for a, _ in chunks], [b for _, b in chunks]))
     finally:
         _CTX = {}
