@@ -10,7 +10,7 @@ import time
 from dataclasses import dataclass
 
 
-from .errors import AlreadyProcessedError, FeedOptError, GCodeError
+from .errors import AlreadyProcessedError, FeedOptError, GCodeError, UsageError
 from .gcode.path import build_path
 from .gcode.reader import gc_paused, read_file
 from .gcode.verify import verify
@@ -85,6 +85,36 @@ def input_time_s(path, profile, opts: Options, fw_limits=None) -> float:
     return tr.duration_s
 
 
+#: most samples a plan may have when --vmax/--amax lower the limits: every method keeps
+#: several arrays per Ts sample (the kinematic plan ~100 bytes a sample, measured on the
+#: Cura Benchy: 465 MB at 1.2 M samples, 1.04 GB at 6.2 M), so 3e7 (16.7 h at Ts = 2 ms) is
+#: ~3 GB. A file that is this long at the profile's own limits is planned as it is.
+MAX_PLAN_SAMPLES = 30_000_000
+
+
+def check_plan_size(path, profile, vmax_mm_s=None, amax_mm_s2=None, use_slicer_feed=False,
+                    fw_limits=None, where: str = "") -> float:
+    """Refuse --vmax/--amax values that would make the plan absurdly large (``--vmax 1e-6``
+    asked for 667 GiB): the time of the fastest plan under the lowered limits (firmware
+    trapezoids), in samples of Ts, must stay within MAX_PLAN_SAMPLES. Returns that time, s."""
+    if vmax_mm_s is None and amax_mm_s2 is None:
+        return float("nan")
+    vmax, axis_v, axis_a = effective_limits(profile, vmax_mm_s, amax_mm_s2)
+    tr = plan_trapezoids(path, vmax_mm_s=vmax, axis_vmax_mm_s=axis_v, axis_amax_mm_s2=axis_a,
+                         firmware=profile.firmware, use_slicer_feed=use_slicer_feed,
+                         fw_limits=fw_limits)
+    n = tr.duration_s / profile.ts_s
+    if n > MAX_PLAN_SAMPLES:
+        given = [(k, v) for k, v in (("--vmax", vmax_mm_s), ("--amax", amax_mm_s2))
+                 if v is not None]
+        opts = " and ".join(f"{k} {v:g}" for k, v in given)
+        raise UsageError(f"{where}: with {opts} the plan would last {tr.duration_s / 3600:.3g} h "
+                         f"= {n:.3g} samples of {profile.ts_s * 1000:g} ms, above the limit of "
+                         f"{MAX_PLAN_SAMPLES:.3g} (about 3 GB); raise "
+                         f"{' or '.join(k for k, _ in given)}")
+    return tr.duration_s
+
+
 def execute_check(out_program, profile, tol_mm: float) -> dict:
     """End to end: the written G-code run by the firmware model and the profile's nominal
     plant (no unknown effects): executed time and contour error, to set against the plan's
@@ -137,6 +167,8 @@ def optimize_file(in_path, out_path, profile, opts: Options) -> Report:
         raise GCodeError(f"{in_path}: no move travels in X, Y or Z; nothing to re-time")
     wall["path"] = time.perf_counter() - t0
     t0 = time.perf_counter()
+    check_plan_size(path, profile, opts.vmax_mm_s, opts.amax_mm_s2, opts.use_slicer_feed,
+                    fw_limits, where=str(in_path))
     sched = plan(path, profile, opts, fw_limits)
     t_in = input_time_s(path, profile, opts, fw_limits)
     wall["plan"] = time.perf_counter() - t0

@@ -10,6 +10,7 @@ import time
 
 import click
 
+from .options import AMAX, SEED, STRINGENCY, TOLERANCE, VMAX
 from .simulate import _parse_effects
 
 COLUMNS = (("method", "method", "{}"), ("cycle_time_s", "cycle s", "{:.3f}"),
@@ -44,17 +45,17 @@ def format_table(rows) -> str:
 @click.option("--machine", "-m", required=True, help="Profile name (ender3pro, nomad3) or YAML path.")
 @click.option("--methods", default="kinematic,conservative,pb,dd,pidd,oracle", show_default=True,
               help="Comma-separated methods to run.")
-@click.option("--seed", type=int, default=0, show_default=True, help="Plant seed (same for all methods).")
+@click.option("--seed", type=SEED, default=0, show_default=True, help="Plant seed (same for all methods).")
 @click.option("--effect", "effects", multiple=True, callback=_parse_effects, metavar="SPEC",
               help="Unknown effect in the plant (repeatable), e.g. sinusoid:axis=x,amp_mm=0.05.")
 @click.option("--nominal/--drawn", default=True, show_default=True,
               help="Plant = the FRF set's mean response, or one seeded draw of it.")
-@click.option("--tolerance", type=click.FloatRange(min=0, min_open=True), default=None,
+@click.option("--tolerance", type=TOLERANCE, default=None,
               help="E_max, mm (default: the profile's).")
-@click.option("--stringency", type=click.FloatRange(0.5, 1.0, max_open=True), default=None,
+@click.option("--stringency", type=STRINGENCY, default=None,
               help="η (default: the profile's).")
-@click.option("--vmax", type=click.FloatRange(min=0, min_open=True), default=None, help="V_max, mm/s.")
-@click.option("--amax", type=click.FloatRange(min=0, min_open=True), default=None, help="A_max, mm/s².")
+@click.option("--vmax", type=VMAX, default=None, help="V_max, mm/s.")
+@click.option("--amax", type=AMAX, default=None, help="A_max, mm/s².")
 @click.option("--offline", is_flag=True, help="Do not learn between windows (dd/pidd keep their priors).")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False), help="Write the rows as JSON ('-' for stdout).")
 @click.option("--plot", "png", type=click.Path(dir_okay=False),
@@ -74,7 +75,7 @@ def compare(gcode, machine, methods, seed, effects, nominal, tolerance, stringen
     from ..optimize import METHODS
     from ..optimize.compare import run_compare
     from ..outputs import check_input, check_outputs, output_file, output_path
-    from ..pipeline import PLOT_SUFFIXES, path_for, read_for
+    from ..pipeline import PLOT_SUFFIXES, check_plan_size, path_for, read_for
     from ..profile import load_profile
     from ..vm.plant import Plant
     from .options import profile_files
@@ -93,6 +94,7 @@ def compare(gcode, machine, methods, seed, effects, nominal, tolerance, stringen
     tol = tolerance or profile.limits.tolerance_mm
     eta = stringency or profile.limits.stringency
     path = path_for(read_for(Path(gcode), profile), profile)
+    check_plan_size(path, profile, vmax, amax, where=str(gcode))
     plant = Plant(profile, seed=seed, effects=effects, nominal=nominal)
     t0 = time.perf_counter()
     runs = run_compare(path, profile, plant, methods=chosen, tolerance_mm=tol,

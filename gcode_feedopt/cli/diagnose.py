@@ -7,6 +7,8 @@ import json
 
 import click
 
+from .options import Bounded
+
 
 @click.command("diagnose")
 @click.argument("log_path", metavar="LOG", type=click.Path(exists=True, dir_okay=False))
@@ -15,7 +17,7 @@ import click
               help="Write the diagnosis as JSON here ('-' for stdout).")
 @click.option("--plot", "plot_path", type=click.Path(dir_okay=False),
               help="PNG of the residual before/after and its spectrum.")
-@click.option("--fit-fraction", type=click.FloatRange(0.1, 0.9), default=0.6, show_default=True,
+@click.option("--fit-fraction", type=Bounded("fit_fraction"), default=0.6, show_default=True,
               help="Fraction of the log (from its start) the extension is fitted on; the rest is held out.")
 @click.option("--output", "-o", "out_profile", type=click.Path(dir_okay=False),
               help="Write the extended profile here (YAML): delay/gain/resonance_shift folded "

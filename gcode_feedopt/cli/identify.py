@@ -26,7 +26,7 @@ from ..pipeline import PLOT_SUFFIXES
 from ..profile import load_profile, save_profile
 from ..profile.io import check_profile_output
 from ..profile.schema import AxisModel, FRFSet, Mode
-from .options import profile_files
+from .options import Bounded, profile_files
 
 #: a fit whose log-magnitude RMS residual exceeds this is flagged as poor
 POOR_FIT_RMS = 0.5
@@ -134,13 +134,17 @@ def _identify_axis(axis: str, files, n_modes: int, excitation=None, n_sets: int 
 @click.option("--excitation", type=click.Choice(["auto", "legacy", "current"]), default="auto",
               show_default=True, help="Klipper resonance-test generator behind raw recordings "
               "(legacy: v0.12 and earlier; current: v0.13+); auto detects it from the data")
-@click.option("--freq-start", type=float, default=None, help="raw: FREQ_START of the test, Hz")
-@click.option("--freq-end", type=float, default=None, help="raw: FREQ_END of the test, Hz")
-@click.option("--hz-per-sec", type=float, default=None, help="raw: HZ_PER_SEC of the test")
-@click.option("--accel-per-hz", type=float, default=None, help="raw: ACCEL_PER_HZ, mm/s^2 per Hz")
-@click.option("--sweeping-accel", type=float, default=None,
+@click.option("--freq-start", type=Bounded("freq_hz"), default=None,
+              help="raw: FREQ_START of the test, Hz")
+@click.option("--freq-end", type=Bounded("freq_hz"), default=None,
+              help="raw: FREQ_END of the test, Hz")
+@click.option("--hz-per-sec", type=Bounded("hz_per_sec"), default=None,
+              help="raw: HZ_PER_SEC of the test")
+@click.option("--accel-per-hz", type=Bounded("accel_per_hz"), default=None,
+              help="raw: ACCEL_PER_HZ, mm/s^2 per Hz")
+@click.option("--sweeping-accel", type=Bounded("sweeping_accel"), default=None,
               help="raw, current generator: SWEEPING_ACCEL, mm/s^2")
-@click.option("--sweeping-period", type=float, default=None,
+@click.option("--sweeping-period", type=Bounded("sweeping_period"), default=None,
               help="raw, current generator: SWEEPING_PERIOD, s (0 = no sweeping)")
 @click.option("--segments", type=click.IntRange(2, 16), default=4, show_default=True,
               help="raw: FRFs per recording (interleaved window subsets, the spread)")
@@ -157,6 +161,9 @@ def identify(x_files, y_files, base, n_modes, output, plot_path, excitation, fre
     overrides = dict(freq_start_hz=freq_start, freq_end_hz=freq_end, hz_per_sec=hz_per_sec,
                      accel_per_hz=accel_per_hz, sweeping_accel_mm_s2=sweeping_accel,
                      sweeping_period_s=sweeping_period)
+    if freq_start is not None and freq_end is not None and freq_end < freq_start:
+        raise click.BadParameter(f"{freq_end:g} Hz is below --freq-start {freq_start:g} Hz; "
+                                 "give FREQ_END >= FREQ_START", param_hint="'--freq-end'")
     ex = None
     if excitation != "auto":
         ex = GENERATORS[excitation].with_overrides(**overrides)

@@ -10,7 +10,7 @@ import click
 from ..errors import FeedOptError
 from ..pipeline import METHODS, Options, optimize_file
 from ..profile import load_profile
-from .options import profile_files
+from .options import AMAX, STRINGENCY, TOLERANCE, VMAX, profile_files
 
 
 @click.command("optimize")
@@ -24,13 +24,13 @@ from .options import profile_files
                    "kinematic: the firmware's limits only (fastest, no error model); "
                    "pb: the twin's physics alone; conservative: uniform limits lowered until "
                    "the profile's nominal machine holds the tolerance.")
-@click.option("--tolerance", type=click.FloatRange(min=0, min_open=True), metavar="MM",
+@click.option("--tolerance", type=TOLERANCE, metavar="MM",
               help="Contour-error tolerance E_max, mm (default: the profile's).")
-@click.option("--stringency", type=click.FloatRange(0.5, 0.9999), metavar="P",
+@click.option("--stringency", type=STRINGENCY, metavar="P",
               help="Fraction of samples that must be within tolerance (default: the profile's).")
-@click.option("--vmax", type=click.FloatRange(min=0, min_open=True), metavar="MM_S",
+@click.option("--vmax", type=VMAX, metavar="MM_S",
               help="Override the profile's feed limit, mm/s.")
-@click.option("--amax", type=click.FloatRange(min=0, min_open=True), metavar="MM_S2",
+@click.option("--amax", type=AMAX, metavar="MM_S2",
               help="Override the profile's X/Y acceleration limit, mm/s².")
 @click.option("--mode", type=click.Choice(["refeed", "sampled"]), default="refeed", show_default=True,
               help="refeed: the original moves with new F values; sampled: one G1 per Ts.")

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 import click
 
 from ..vm import effects as fx
+from .options import SEED, TOLERANCE
 
 CONTOUR_ON = ("extrusion", "xy")
 
@@ -100,7 +101,7 @@ def _parse_effects(ctx, param, values):
 @click.command("simulate")
 @click.argument("gcode", type=click.Path(exists=True, dir_okay=False))
 @click.option("--machine", "-m", required=True, help="Profile name (ender3pro, nomad3) or YAML path.")
-@click.option("--seed", type=int, default=0, show_default=True,
+@click.option("--seed", type=SEED, default=0, show_default=True,
               help="Seed of the FRF draw (the machine) and of the sensor noise.")
 @click.option("--effect", "effects", multiple=True, callback=_parse_effects, metavar="SPEC",
               help="Unknown effect to plant, e.g. sinusoid:axis=x,amp_mm=0.05,freq_hz=116.7 "
@@ -109,7 +110,7 @@ def _parse_effects(ctx, param, values):
               help="Write the encoder log (t,x_cmd,y_cmd,x,y,z_cmd,z,e_cmd) here ('-' for stdout).")
 @click.option("--report", "report_path", type=click.Path(dir_okay=False),
               help="Write the metrics as JSON here ('-' for stdout).")
-@click.option("--tolerance", "tol_mm", type=click.FloatRange(min=0, min_open=True),
+@click.option("--tolerance", "tol_mm", type=TOLERANCE,
               help="Contour tolerance E_max, mm [default: the profile's].")
 @click.option("--contour-on", type=click.Choice(CONTOUR_ON), default="extrusion", show_default=True,
               help="Samples the contour error is judged on: extruding moves, or all XY motion.")

@@ -36,7 +36,12 @@ _CTX: dict = {}
 def default_workers() -> int:
     env = os.environ.get("GCODE_FEEDOPT_JOBS")
     if env:
-        return max(1, int(env))
+        if not env.strip().isdigit() or not 1 <= int(env) <= 256:
+            from ..errors import UsageError
+
+            raise UsageError(f"GCODE_FEEDOPT_JOBS={env[:20]!r} is not a whole number from 1 to "
+                             "256; set it so or unset it")
+        return int(env)
     return max(1, min(os.cpu_count() or 1, 8))
 
 
