@@ -26,6 +26,11 @@ class LogError(FeedOptError):
     """A sensor log is malformed, truncated, from another machine, or has no motion."""
 
 
+class InputError(FeedOptError):
+    """An input file is missing, not a regular file, unreadable, or binary where text is due
+    (gcode_feedopt.inputs)."""
+
+
 class OutputError(FeedOptError):
     """An output cannot be written: missing folder, not a regular file, the input itself,
     read-only, full disk (gcode_feedopt.outputs)."""

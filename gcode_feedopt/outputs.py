@@ -93,24 +93,6 @@ def _same(st: os.stat_result, other: os.stat_result) -> bool:
     return (st.st_dev, st.st_ino) == (other.st_dev, other.st_ino)
 
 
-def check_input(path, option: str = "input") -> pathlib.Path:
-    """A file to read: it exists and is a regular file (after symlinks). Returns the path."""
-    path = pathlib.Path(path)
-    lab = _label(option)
-    try:
-        st = os.stat(path)
-    except FileNotFoundError:
-        raise OutputError(f"{lab}{path}: no such file; check the path") from None
-    except OSError as exc:
-        raise OutputError(f"{lab}{path}: cannot read ({exc.strerror}); check the path") from None
-    if not stat.S_ISREG(st.st_mode):
-        raise OutputError(f"{lab}{path}: is {_kind(st.st_mode)}, not a regular file; give the "
-                          "path of a file")
-    if not os.access(path, os.R_OK):
-        raise OutputError(f"{lab}{path}: not readable (permission denied); check its mode")
-    return path
-
-
 def check_output(path, option: str = "output", *, inputs: Iterable = (),
                  in_place: bool = False, suffixes: Iterable[str] | None = None) -> Target:
     """Check that ``path`` can be written as the rules above say; nothing is written.

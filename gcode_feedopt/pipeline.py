@@ -16,7 +16,8 @@ from .gcode.reader import gc_paused, read_file
 from .gcode.verify import verify
 from .gcode.writer import write, write_trajectory_csv
 from .plan.kinematic import effective_limits, plan_kinematic, plan_trapezoids, writer_accel
-from .outputs import check_input, check_outputs, output_file, output_path, write_bytes
+from .inputs import check_input
+from .outputs import check_outputs, output_file, output_path, write_bytes
 from .report import Report
 from .vm import firmware
 
@@ -236,6 +237,10 @@ def optimize_file(in_path, out_path, profile, opts: Options) -> Report:
                                         "whole_file_checks", "samples_evaluated",
                                         "slowed_length_fraction", "compute_s", "solver_s")
                   if k in info}})
+    if program.lines and not program.lines[-1].endswith(b"\n"):
+        rep.notes.append(f"the last line ({len(program.lines)}) has no line end: if the file was "
+                         "cut short (an interrupted upload or copy), the print is incomplete; "
+                         "check its end")
     if fw_out > fw_in:
         rep.notes.append("the firmware runs the original faster than our output: the slicer's "
                          "feeds exceed the profile's limits somewhere (see --vmax)")

@@ -13,7 +13,7 @@ import sys
 import pytest
 
 from gcode_feedopt import outputs
-from gcode_feedopt.errors import OutputError
+from gcode_feedopt.errors import FeedOptError, OutputError
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 GOOD = b"G1 X10 Y10 F3000\nG1 X50 Y10 E2 F1200\nG1 X50 Y50 E4\n"
@@ -113,8 +113,10 @@ def test_fifo_refused_as_output_and_input(tmp_path):
     os.mkfifo(f)
     with pytest.raises(OutputError, match="FIFO"):
         outputs.check_output(f)
-    with pytest.raises(OutputError, match="FIFO"):
-        outputs.check_input(f)
+    from gcode_feedopt.inputs import check_input
+
+    with pytest.raises(FeedOptError, match="FIFO"):
+        check_input(f)
     assert stat.S_ISFIFO(os.stat(f).st_mode)
 
 

@@ -97,6 +97,24 @@ class FeedOptGroup(click.Group):
         except FeedOptError as exc:
             _error(str(exc))
             ctx.exit(exc.exit_code)
+        except (click.exceptions.Exit, click.ClickException, click.Abort):
+            raise
+        except MemoryError:
+            _error("out of memory; the file is too long for this machine's memory: split it, "
+                   "or use --method kinematic (the smallest plan)")
+            ctx.exit(INTERNAL_EXIT)
+        except Exception as exc:  # a bug: one line and a way to see more, never a traceback
+            if os.environ.get("GCODE_FEEDOPT_TRACEBACK"):
+                raise
+            where = ""
+            tb = exc.__traceback__
+            while tb is not None:
+                where = f"{tb.tb_frame.f_code.co_filename.rsplit(os.sep, 1)[-1]}:{tb.tb_lineno}"
+                tb = tb.tb_next
+            _error(f"internal error ({type(exc).__name__} at {where}: {exc}); this is a bug: "
+                   "please report it with the command; GCODE_FEEDOPT_TRACEBACK=1 shows the "
+                   "traceback")
+            ctx.exit(INTERNAL_EXIT)
         except KeyboardInterrupt as exc:  # Ctrl-C, SIGTERM, SIGHUP (procs.install_handlers)
             from ..outputs import remove_temps
             from ..procs import acknowledge, signal_name
@@ -109,6 +127,8 @@ class FeedOptGroup(click.Group):
             ctx.exit(128 + signum)
 
 
+#: exit code of an internal error (a bug; BSD's EX_SOFTWARE), apart from bad input's 2
+INTERNAL_EXIT = 70
 #: longest error line; a longer message (a 10 MB token quoted back) keeps its start and end
 MAX_ERROR_CHARS = 300
 

@@ -74,7 +74,8 @@ def compare(gcode, machine, methods, seed, effects, nominal, tolerance, stringen
 
     from ..optimize import METHODS
     from ..optimize.compare import run_compare
-    from ..outputs import check_input, check_outputs, output_file, output_path
+    from ..inputs import check_input
+    from ..outputs import check_outputs, output_file, output_path
     from ..pipeline import PLOT_SUFFIXES, check_plan_size, path_for, read_for
     from ..profile import load_profile
     from ..vm.plant import Plant

@@ -36,7 +36,8 @@ def diagnose(log_path, machine, json_path, plot_path, fit_fraction, out_profile,
     from ..closedloop.logs import load_log
     from ..profile import load_profile
 
-    from ..outputs import check_input, check_outputs, output_path, write_text
+    from ..inputs import check_input
+    from ..outputs import check_outputs, output_path, write_text
     from ..pipeline import PLOT_SUFFIXES
     from ..profile.io import check_profile_output
     from .options import profile_files

@@ -21,7 +21,8 @@ from ..identify.excitation import GENERATORS
 from ..identify.raw import analyse_raw, frf_rows
 from ..identify.readers import detect_kind, read_frf, read_raw, read_spectra, read_uff58
 from ..identify.spectra import BAND_HZ, FREQ_SPREAD, GRID_HZ, ZETA_SPREAD, fit_spectrum, widened_frf_set
-from ..outputs import check_input, check_outputs, output_path
+from ..inputs import check_input
+from ..outputs import check_outputs, output_path
 from ..pipeline import PLOT_SUFFIXES
 from ..profile import load_profile, save_profile
 from ..profile.io import check_profile_output

@@ -25,7 +25,7 @@ def learn(logs, machine, out_path, skip_bad):
     from ..profile import load_profile
     from ..profile.io import save_profile
 
-    from ..outputs import check_input
+    from ..inputs import check_input
     from ..profile.io import check_profile_output
     from .options import profile_files
 

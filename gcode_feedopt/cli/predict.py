@@ -11,27 +11,40 @@ from ..errors import LogError
 from ..profile import load_profile
 
 
+#: largest |value| in a log: positions in mm (a 10 m machine is 1e4) and times in s (a week
+#: is 6e5)
+MAX_LOG_ABS = 1e7
+
+
 def read_log_columns(path: pathlib.Path, ts_s: float):
     """t, x_cmd, y_cmd and (if present) x, y from a log; refuses malformed logs."""
-    try:
-        with open(path, "rb") as fh:
-            header = fh.readline().decode("ascii", "replace").strip()
-    except FileNotFoundError:
-        raise LogError(f"{path}: no such file; check the path") from None
+    from ..inputs import read_text
+
+    lines = read_text(path, "a log (t,x_cmd,y_cmd[,x,y])", LogError).splitlines()
+    header = lines[0].strip() if lines else ""
     cols = [c.strip() for c in header.split(",")]
     for need in ("t", "x_cmd", "y_cmd"):
         if need not in cols:
             raise LogError(f"{path}:1: column '{need}' missing; a log starts with the header "
                            "t,x_cmd,y_cmd[,x,y] (s, mm)")
     try:
-        data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+        data = np.loadtxt(lines[1:], delimiter=",", ndmin=2)
     except ValueError as exc:
-        raise LogError(f"{path}: a row is not {len(cols)} numbers ({exc}); fix or re-export the log") from None
+        raise LogError(f"{path}: a row is not {len(cols)} numbers "
+                       f"({' '.join(str(exc).split())[:120]}); fix or re-export the log") from None
     if data.shape[0] < 10:
         raise LogError(f"{path}: only {data.shape[0]} rows; a log needs at least 10 samples")
     if not np.all(np.isfinite(data)):
         row = int(np.argwhere(~np.isfinite(data))[0, 0]) + 2
         raise LogError(f"{path}:{row}: not a finite number; fix the row or cut the log there")
+    if data.shape[1] != len(cols):
+        raise LogError(f"{path}: rows have {data.shape[1]} numbers, the header names "
+                       f"{len(cols)} columns; fix the header or re-export the log")
+    big = np.abs(data) > MAX_LOG_ABS
+    if big.any():  # 1e308 passed as finite and the twin wrote thousands of rows of nan
+        row = int(np.argwhere(big)[0, 0]) + 2
+        raise LogError(f"{path}:{row}: value beyond ±{MAX_LOG_ABS:g} (mm, s); fix the row or "
+                       "cut the log there")
     t = data[:, cols.index("t")]
     dt = np.diff(t)
     ts = float(np.median(dt))
@@ -55,7 +68,8 @@ def read_log_columns(path: pathlib.Path, ts_s: float):
 def predict(log, machine, output, no_learn):
     """Predict the actual X/Y positions of LOG's commanded motion with the twin, learning online
     (one sample behind) from the measured columns x, y when the log has them."""
-    from ..outputs import check_input, check_outputs, output_file
+    from ..inputs import check_input
+    from ..outputs import check_outputs, output_file
     from ..twin.model import axis_twin
     from .options import profile_files
 

@@ -125,7 +125,8 @@ def simulate(gcode, machine, seed, effects, log_path, report_path, tol_mm, conto
     gcode-feedopt simulate part.gcode --machine ender3pro --log part.csv --report part.json
     gcode-feedopt simulate part.gcode -m ender3pro --seed 3 --effect backlash:axis=x,magnitude_mm=0.05
     """
-    from ..outputs import check_input, check_outputs, write_text
+    from ..inputs import check_input
+    from ..outputs import check_outputs, write_text
     from ..profile import load_profile
     from ..vm.log import write_log
     from .options import profile_files

@@ -181,6 +181,9 @@ def check_binary(data: bytes, name: str) -> None:
     if b"\x00" in head:
         raise GCodeError(f"{name}: contains NUL bytes, so it is not a text G-code file; "
                          "pass the slicer's .gcode output")
+    if b"\n" not in data and b"\r" in data.rstrip(b"\r"):
+        raise GCodeError(f"{name}: lines end in CR only (classic Mac OS); no firmware reads "
+                         "that; convert the line ends to LF (e.g. `tr '\\r' '\\n'`)")
 
 
 def _decode(line: bytes) -> str:
