@@ -27,6 +27,9 @@ def read_log_columns(path: pathlib.Path, ts_s: float):
         if need not in cols:
             raise LogError(f"{path}:1: column '{need}' missing; a log starts with the header "
                            "t,x_cmd,y_cmd[,x,y] (s, mm)")
+    if len([ln for ln in lines[1:] if ln.strip()]) < 10:
+        raise LogError(f"{path}: only {max(len(lines) - 1, 0)} rows; a log needs at least 10 "
+                       "samples")
     try:
         data = np.loadtxt(lines[1:], delimiter=",", ndmin=2)
     except ValueError as exc:

@@ -88,13 +88,23 @@ def simulate_file(path, profile, **kwargs) -> SimulationResult:
     return res
 
 
+#: largest |value| of an effect parameter (mm, Hz, s, scale): 1e308 ran and gave inf metrics
+MAX_EFFECT_ABS = 1e4
+
+
 def _parse_effects(ctx, param, values):
     out = []
     for spec in values:
         try:
-            out.append(fx.parse_effect(spec))
+            e = fx.parse_effect(spec)
         except fx.EffectSpecError as exc:
             raise click.BadParameter(str(exc), ctx=ctx, param=param) from None
+        for k, v in e.params().items():
+            if isinstance(v, float) and abs(v) > MAX_EFFECT_ABS:
+                raise click.BadParameter(f"{spec[:60]!r}: {k}={v:g} is beyond "
+                                         f"±{MAX_EFFECT_ABS:g}; give a physical value",
+                                         ctx=ctx, param=param)
+        out.append(e)
     return tuple(out)
 
 

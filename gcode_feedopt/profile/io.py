@@ -277,11 +277,14 @@ def load_profile(name_or_path) -> MachineProfile:
             raise ProfileError(f"unknown machine '{text}'; {hint}built-in profiles: "
                                f"{', '.join(names)} (or pass a profile .yaml path)")
         p = _builtin_dir() / f"{text}.yaml"
-    if not p.is_file():
+    if not p.exists():  # a FIFO or folder: read_text says what it is
         raise ProfileError(f"{p}: profile file not found; check the path or use a built-in "
                            f"name ({', '.join(builtin_names())})")
+    from ..inputs import read_text
+
+    text = read_text(p, "a profile YAML", ProfileError)
     try:
-        data = yaml.safe_load(p.read_text())
+        data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f":{mark.line + 1}" if mark else ""
