@@ -63,3 +63,8 @@ class SolverError(FeedOptError):
 class ModelWarning(UserWarning):
     """Data the model takes but explains badly (an FRF the modal fit misses, repeats that
     disagree, a mode at the edge of the band). The CLI prints each as one line on stderr."""
+
+
+class LogWarning(ModelWarning):
+    """A log used with a caveat: it starts mid-motion (a warm-up is left out), ends mid-motion,
+    or moves too briefly to identify much. The CLI prints each as one line on stderr."""

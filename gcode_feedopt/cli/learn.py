@@ -46,9 +46,11 @@ def learn(logs, machine, out_path, skip_bad):
         n_ok += 1
         for r in records:
             pr = r["prediction_rms_mm"]
+            warm = (f", after a {r['warmup_samples']}-sample warm-up"
+                    if r.get("warmup_samples") else "")
             click.echo(f"{path}: {r['axis']}: prediction RMS {pr['before'] * 1e3:.1f} -> "
                        f"{pr['after'] * 1e3:.1f} µm (step x{r['step_scale']:.3g}"
-                       f"{', bounded' if r['step_clipped'] else ''})")
+                       f"{', bounded' if r['step_clipped'] else ''}{warm})")
     if n_ok == 0:
         raise LogError("no log was learned from; nothing written")
     save_profile(profile, out_path)

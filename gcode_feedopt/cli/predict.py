@@ -1,13 +1,21 @@
-"""``gcode-feedopt predict --machine M log.csv -o pred.csv`` — run the twin over a log."""
+"""``gcode-feedopt predict --machine M log.csv -o pred.csv`` — run the twin over a log.
+
+The log is an encoder log (``t,x_cmd,y_cmd[,x,y]``) or a plan written by ``optimize
+--trajectory`` (``t,x,y,z,e``: commands only). A log that starts mid-motion (cut mid-print) is
+predicted from its first row with the history held there, but its first ``twin_memory``
+samples depend on motion before the log: the twin does not learn from them and the summary
+leaves them out (one-line warning; ``closedloop.logs``)."""
 
 from __future__ import annotations
 
 import pathlib
 
+import warnings
+
 import click
 import numpy as np
 
-from ..errors import LogError
+from ..errors import LogError, LogWarning
 from ..profile import load_profile
 
 
@@ -17,16 +25,19 @@ MAX_LOG_ABS = 1e7
 
 
 def read_log_columns(path: pathlib.Path, ts_s: float):
-    """t, x_cmd, y_cmd and (if present) x, y from a log; refuses malformed logs."""
+    """t, x_cmd, y_cmd and (if present) x, y from a log; refuses malformed logs. A plan from
+    ``optimize --trajectory`` (header ``t,x,y,z,e``) gives its x, y as the commands."""
     from ..inputs import read_text
 
     lines = read_text(path, "a log (t,x_cmd,y_cmd[,x,y])", LogError).splitlines()
     header = lines[0].strip() if lines else ""
     cols = [c.strip() for c in header.split(",")]
+    planned = cols == ["t", "x", "y", "z", "e"]
     for need in ("t", "x_cmd", "y_cmd"):
-        if need not in cols:
+        if need not in cols and not planned:
             raise LogError(f"{path}:1: column '{need}' missing; a log starts with the header "
-                           "t,x_cmd,y_cmd[,x,y] (s, mm)")
+                           "t,x_cmd,y_cmd[,x,y] (s, mm), a plan (optimize --trajectory) with "
+                           "t,x,y,z,e")
     if len([ln for ln in lines[1:] if ln.strip()]) < 10:
         raise LogError(f"{path}: only {max(len(lines) - 1, 0)} rows; a log needs at least 10 "
                        "samples")
@@ -59,6 +70,8 @@ def read_log_columns(path: pathlib.Path, ts_s: float):
         raise LogError(f"{path}: sample period {ts * 1000:.4g} ms differs from the profile's Ts "
                        f"{ts_s * 1000:g} ms; resample the log or use a profile with that Ts")
     get = {c: data[:, i] for i, c in enumerate(cols)}
+    if planned:
+        return t, get["x"], get["y"], None, None
     return t, get["x_cmd"], get["y_cmd"], get.get("x"), get.get("y")
 
 
@@ -70,9 +83,13 @@ def read_log_columns(path: pathlib.Path, ts_s: float):
 @click.option("--no-learn", is_flag=True, help="Do not learn from the measured columns.")
 def predict(log, machine, output, no_learn):
     """Predict the actual X/Y positions of LOG's commanded motion with the twin, learning online
-    (one sample behind) from the measured columns x, y when the log has them."""
+    (one sample behind) from the measured columns x, y when the log has them. LOG may also be
+    a plan written by `optimize --trajectory` (t,x,y,z,e). A profile's extensions written by
+    `diagnose -o` are part of the prediction (docs/diagnose.md)."""
+    from ..closedloop.logs import edge_speeds_mm_s, log_warmup
     from ..inputs import check_input
     from ..outputs import check_outputs, output_file
+    from ..twin.extensions import extra_variance_mm2, mean_offsets
     from ..twin.model import axis_twin
     from .options import profile_files
 
@@ -80,13 +97,34 @@ def predict(log, machine, output, no_learn):
     check_input(log)
     target = check_outputs({"-o": output}, inputs=[log, *profile_files(machine)])["-o"]
     t, xc, yc, xm, ym = read_log_columns(log, prof.ts_s)
+    cmd_xy = np.column_stack([xc, yc])
+    w0 = log_warmup(cmd_xy, prof.ts_s, prof)
+    if w0:
+        v0, _ = edge_speeds_mm_s(cmd_xy, prof.ts_s)
+        warnings.warn(f"{log}: starts mid-motion (the command moves at {v0:.3g} mm/s at t=0): "
+                      f"its first {min(w0, len(t))} samples ({w0 * prof.ts_s:.2f} s, the twin's "
+                      f"memory) depend on motion before the log; they are predicted as if the "
+                      f"machine had been at rest at the first row, not learned from, and left "
+                      f"out of the summary", LogWarning, stacklevel=1)
     out = [t]
-    for axis, cmd, meas in (("x", xc, xm), ("y", yc, ym)):
+    summary = []
+    off = mean_offsets(prof, cmd_xy)
+    for i, (axis, cmd, meas) in enumerate((("x", xc, xm), ("y", yc, ym))):
         tw = axis_twin(prof, axis)
-        mean, std = tw.run(cmd, meas, learn=(meas is not None and not no_learn))
+        mean, std = tw.run(cmd, meas, learn=(meas is not None and not no_learn), warmup=w0,
+                           offset_mm=off[:, i],
+                           extra_var_mm2=extra_variance_mm2(prof.axes[axis].effects))
         out += [mean, std]
+        if meas is not None and w0 < len(t):
+            r = meas[w0:] - mean[w0:]
+            inside = float(np.mean(np.abs(r) <= 1.959964 * std[w0:]))
+            summary.append(f"{axis} RMS {np.sqrt(np.mean(r * r)) * 1e3:.2f} µm, 95 % interval "
+                           f"holds {inside:.1%}")
     arr = np.column_stack(out)
     with output_file(target, text=True) as fh:
         fh.write("t,x_mean,x_std,y_mean,y_std\n")
         np.savetxt(fh, arr, fmt=["%.6f", "%.6f", "%.6f", "%.6f", "%.6f"], delimiter=",")
     click.echo(f"predict: {len(t)} samples -> {output}", err=True)
+    if summary:
+        span = f"samples {w0}-{len(t) - 1}" if w0 else "all samples"
+        click.echo(f"predict: measured - predicted ({span}): " + "; ".join(summary), err=True)

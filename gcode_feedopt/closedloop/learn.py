@@ -6,7 +6,7 @@ learns the whole log (``twin.model.AxisTwin.run``: the weights jointly with whic
 the FRF population this is). The posterior N(μ₁, Σ₁) becomes the next prior, bounded so that
 one bad log cannot wreck the profile:
 
-1. **refusal**: the log must pass ``closedloop.logs.check_log`` (machine, truncation, motion,
+1. **refusal**: the log must pass ``closedloop.logs.check_log`` (machine, length, motion,
    clipping), and the prior twin's open-loop prediction error must be plausible,
    RMS ≤ ``MAX_PRED_RMS_SIGMAS``·σ_ε per axis; otherwise the log is refused with a message;
 2. **trust region** in physical units: the step μ₁ − μ₀ is scaled back (halved until it fits)
@@ -19,6 +19,9 @@ one bad log cannot wreck the profile:
 3. **tempering**: Σ = Σ₁ + ``FORGET``·Σ₀, so the prior never collapses to a point and later
    logs can still correct it (a log of K samples gives an information far beyond what the
    twin's linear-Gaussian model warrants for the next, different part).
+
+A log that starts mid-motion carries a warm-up (``MotionLog.warmup``): its first samples depend
+on motion before the log, so they are neither learned from nor part of any RMS here.
 
 Each update appends a record to ``Prior.learned_from``: the log's name, SHA-256, samples,
 date, open-loop prediction RMS before/after on that log, the Mahalanobis step and whether it
@@ -42,11 +45,12 @@ FORGET = 0.05
 MAX_PRED_RMS_SIGMAS = 50.0
 
 
-def open_loop_rms(twin, x_cmd, x_meas) -> float:
-    """RMS of the twin's prediction without measurements (what the optimizer plans with)."""
+def open_loop_rms(twin, x_cmd, x_meas, warmup: int = 0) -> float:
+    """RMS of the twin's prediction without measurements (what the optimizer plans with),
+    after the ``warmup`` samples of a log that starts mid-motion."""
     t = dataclasses.replace(twin)
     mean, _ = t.run(x_cmd, None, learn=False)
-    return float(np.sqrt(np.mean((mean - x_meas) ** 2)))
+    return float(np.sqrt(np.mean((mean[warmup:] - np.asarray(x_meas)[warmup:]) ** 2)))
 
 
 def _sha(path) -> str:
@@ -57,19 +61,22 @@ def _sha(path) -> str:
         return ""
 
 
-def learn_axis(profile, axis: str, x_cmd, x_meas, *, source: str = "", sha: str = ""):
-    """(Prior, record) for one axis from one log's commanded/measured positions."""
+def learn_axis(profile, axis: str, x_cmd, x_meas, *, source: str = "", sha: str = "",
+               warmup: int = 0):
+    """(Prior, record) for one axis from one log's commanded/measured positions; the first
+    ``warmup`` samples (a log that starts mid-motion, ``closedloop.logs``) are neither learned
+    from nor scored."""
     from ..twin.model import axis_twin
 
     twin = axis_twin(profile, axis, method="pidd")
     mu0, cov0 = twin.mu.copy(), twin.cov.copy()
     sigma = profile.twin.sigma_eps_mm
-    before = open_loop_rms(twin, x_cmd, x_meas)
+    before = open_loop_rms(twin, x_cmd, x_meas, warmup)
     if before > MAX_PRED_RMS_SIGMAS * sigma:
         raise LogError(f"{source}: the twin's prediction misses axis {axis} by {before:.3g} mm "
                        f"RMS (limit {MAX_PRED_RMS_SIGMAS:g}·σ_ε = {MAX_PRED_RMS_SIGMAS * sigma:.3g} mm); "
                        f"not learned - run `gcode-feedopt diagnose` on it first")
-    twin.run(x_cmd, x_meas, learn=True)
+    twin.run(x_cmd, x_meas, learn=True, warmup=warmup)
     mu1, cov1 = twin.mu, twin.cov
     step = mu1 - mu0
     dist = float(np.sqrt(step @ np.linalg.pinv(cov0, hermitian=True) @ step))
@@ -79,7 +86,7 @@ def learn_axis(profile, axis: str, x_cmd, x_meas, *, source: str = "", sha: str 
     scale = 1.0
     for _ in range(12):
         mean, _ = dataclasses.replace(twin, mu=mu0 + scale * step, cov=cov).run(x_cmd, None, learn=False)
-        change = float(np.sqrt(np.mean((mean - base) ** 2)))
+        change = float(np.sqrt(np.mean((mean[warmup:] - base[warmup:]) ** 2)))
         if change <= MAX_PRED_CHANGE_MM:
             break
         scale *= 0.5
@@ -87,10 +94,10 @@ def learn_axis(profile, axis: str, x_cmd, x_meas, *, source: str = "", sha: str 
         scale = 0.0
     clipped = scale < 1.0
     mu = mu0 + scale * step
-    after = open_loop_rms(dataclasses.replace(twin, mu=mu, cov=cov), x_cmd, x_meas)
+    after = open_loop_rms(dataclasses.replace(twin, mu=mu, cov=cov), x_cmd, x_meas, warmup)
     prior = profile.twin.priors.get(axis)
     history = tuple(prior.learned_from) if prior is not None else ()
-    rec = {"log": source, "sha256": sha, "samples": int(len(x_cmd)),
+    rec = {"log": source, "sha256": sha, "samples": int(len(x_cmd)), "warmup_samples": int(warmup),
            "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
            "method": f"bounded Bayesian update (prediction change <= {MAX_PRED_CHANGE_MM:g} mm RMS, "
                      f"forget {FORGET:g})",
@@ -105,11 +112,12 @@ def learn_logs(profile, logs):
     for log in logs:
         sha = _sha(log.source) if os.path.exists(str(log.source)) else ""
         priors = dict(profile.twin.priors)
+        w0 = int(getattr(log, "warmup", 0))
         for i, ax in enumerate(("x", "y")):
-            if np.ptp(log.cmd_mm[:, i]) < 1.0:
+            if np.ptp(log.cmd_mm[w0:, i]) < 1.0:
                 continue
             priors[ax], rec = learn_axis(profile, ax, log.cmd_mm[:, i], log.pos_mm[:, i],
-                                         source=str(log.source), sha=sha)
+                                         source=str(log.source), sha=sha, warmup=w0)
             records.append({"axis": ax, **rec})
         profile = dataclasses.replace(profile, twin=dataclasses.replace(profile.twin, priors=priors))
     return profile, records

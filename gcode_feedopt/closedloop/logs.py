@@ -1,17 +1,44 @@
 """Logs the closed loop learns from: encoder logs and Klipper raw accelerometer recordings.
 
 ``MotionLog`` is the common form: commanded and measured X, Y (Z) positions on one uniform
-grid at the profile's Ts. ``load_log(path, profile)`` reads either kind and refuses a bad one
-with a one-line ``LogError`` (what, where, value, limit, fix):
+grid at the profile's Ts. ``load_log(path, profile)`` reads either kind, takes it as users have
+it (cut at either end) and refuses only a log nothing can be learned from, with a one-line
+``LogError`` (what, where, value, limit, fix).
 
-- **wrong machine**: Ts differs from the profile's, or the twin's residual is implausible
-  (RMS above ``MAX_RESIDUAL_RATIO`` of the motion's own RMS, e.g. a log of another printer
-  whose dynamics the profile does not describe);
-- **truncated**: shorter than the twin's impulse response (``n_taps``·Ts) or still moving
-  at the last sample (the end of the job is missing);
-- **no motion**: commanded range below ``MIN_TRAVEL_MM`` on every axis;
+**Logs cut mid-print.** The twin is causal: its prediction at sample t depends on the commands
+of the last ``n_taps`` samples (the impulse response) and, through its features, on x̂ and the
+measured errors of the last max(n2, n3) samples — on nothing later. So
+
+- a log that **ends mid-motion** loses nothing: it is used as is (one-line warning);
+- a log that **starts mid-motion** has an unknown past. The convolution's history is held at
+  the first commanded sample (exact when the machine sat there at rest), and the first
+  ``warmup = n_taps + max(n2, n3)`` samples, whose prediction depends on that unknown past,
+  are left out of every score and of learning (``MotionLog.warmup``; ``twin.model.AxisTwin.run``
+  ``warmup``; ``closedloop.learn``); from sample ``warmup`` on the physics' prediction is the
+  one the whole print would give (one-line warning, stating the warm-up).
+
+Whether the command moves at an edge is judged by extrapolating its last (first) two steps one
+sample further (``edge_speeds_mm_s``): a command decelerating to a stop between two samples
+(the optimizer's own plans end so, at 1–2 mm/s on the last step) or starting from rest at the
+first sample is at rest there.
+
+Refused (genuinely unusable):
+
+- **wrong machine**: Ts differs from the profile's, or the twin's residual after the warm-up
+  is implausible (RMS above ``MAX_RESIDUAL_RATIO`` of the motion's own RMS, e.g. a log of
+  another printer whose dynamics the profile does not describe);
+- **too short**: fewer samples after the warm-up than the twin has weights
+  (``n_features(n2, n3)``, 42 for n2 = 10, n3 = 30): nothing can be identified from fewer;
+- **no motion**: commanded range below ``MIN_TRAVEL_MM`` on every axis after the warm-up;
 - **clipped**: the measured signal sits flat at its extreme for ``CLIP_RUN`` samples or more
-  while the command moves ``CLIP_MARGIN_MM`` past it (encoder), or the accelerometer is at full scale (raw).
+  while the command moves ``CLIP_MARGIN_MM`` past it (encoder), or the accelerometer is at full
+  scale (raw).
+
+Used with a one-line ``LogWarning`` (printed by the CLI as ``gcode-feedopt: warning: ...``):
+starts mid-motion, ends mid-motion, and **short motion** — the command moves during fewer
+samples after the warm-up than the impulse response is long (``n_taps``): a motion shorter than
+the response it excites tells little apart; the learning step is bounded anyway
+(``closedloop.learn``).
 
 Encoder logs share one clock between command and measurement (one row each), so they need
 no alignment; shifting them would hide a real delay. A raw accelerometer file has its own
@@ -32,13 +59,15 @@ observed data can only see what the model gets wrong **above** the observer freq
 
 from __future__ import annotations
 
+import dataclasses
 import os
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import signal
 
-from ..errors import LogError
+from ..errors import LogError, LogWarning
 
 #: Observer bandwidth, Hz (paper Sec. 6.1.1).
 OBSERVER_HZ = 15.0
@@ -50,7 +79,7 @@ MAX_RESIDUAL_RATIO = 0.2
 CLIP_RUN = 5
 #: The command must be this far beyond a flat measured extreme for it to count as clipping, mm.
 CLIP_MARGIN_MM = 0.5
-#: A log still moving faster than this at its last sample is truncated, mm/s.
+#: A command moving slower than this (extrapolated one sample past an edge) is at rest, mm/s.
 END_SPEED_MM_S = 1.0
 
 
@@ -62,6 +91,9 @@ class MotionLog:
         ts_s: sample period. cmd_mm, pos_mm: (K, 3) X, Y, Z, mm.
         source: file name. kind: "encoder" | "klipper_raw".
         info: how it was read (alignment, observer, direction, ...).
+        warmup: samples at the start whose prediction depends on motion before the log
+            (``twin_memory`` when the log starts mid-motion, else 0): left out of scores and
+            learning.
     """
 
     ts_s: float
@@ -70,6 +102,7 @@ class MotionLog:
     source: str
     kind: str
     info: dict = field(default_factory=dict)
+    warmup: int = 0
 
 
 def observer_position(x_model: np.ndarray, accel: np.ndarray, fs_hz: float,
@@ -87,30 +120,80 @@ def observer_position(x_model: np.ndarray, accel: np.ndarray, fs_hz: float,
     return x0 + xf + xa
 
 
-def check_log(log: MotionLog, profile, *, predicted_mm: np.ndarray | None = None) -> None:
-    """Raise LogError if the log is from the wrong machine, truncated, motionless or clipped."""
+def twin_memory(profile) -> int:
+    """Samples of the past the twin's prediction at one sample depends on: the impulse
+    response (``n_taps``) and the longest feature lag (max(n2, n3)); the warm-up of a log that
+    starts mid-motion (module docstring)."""
+    tw = profile.twin
+    return int(tw.n_taps + max(tw.n2, tw.n3))
+
+
+def min_usable_samples(profile) -> int:
+    """Fewer samples (after the warm-up) than the twin has weights identify nothing."""
+    from ..twin.features import n_features
+
+    return int(n_features(profile.twin.n2, profile.twin.n3))
+
+
+def edge_speeds_mm_s(cmd_mm: np.ndarray, ts_s: float) -> tuple[float, float]:
+    """(start, end) XY speed of the command at the log's edges, mm/s; 0 where it is at rest.
+
+    The first (last) XY step Δ_0 is extrapolated one sample outwards, 2·Δ_0 − Δ_1, and
+    projected on Δ_0: a command that starts from rest at the first sample (accelerating,
+    Δ_1 ≈ 3·Δ_0) or stops within the last sample (Δ_last ≈ Δ_prev/3) extrapolates to ≤ 0 and
+    is at rest; a command cut while moving keeps its speed. An edge is at rest when either its
+    step or the extrapolation is below ``END_SPEED_MM_S``."""
+    c = np.asarray(cmd_mm, float)[:, :2]
+    if c.shape[0] < 3:
+        return 0.0, 0.0
+
+    def speed(d0, d1):
+        n0 = float(np.linalg.norm(d0))
+        if n0 <= END_SPEED_MM_S * ts_s:
+            return 0.0
+        v_out = float((2.0 * d0 - d1) @ d0) / n0 / ts_s
+        return 0.0 if v_out <= END_SPEED_MM_S else n0 / ts_s
+
+    return speed(c[1] - c[0], c[2] - c[1]), speed(c[-1] - c[-2], c[-2] - c[-3])
+
+
+def log_warmup(cmd_mm: np.ndarray, ts_s: float, profile) -> int:
+    """The warm-up of a log: ``twin_memory(profile)`` samples if the command moves at the first
+    sample (the log starts mid-print), else 0."""
+    v_start, _ = edge_speeds_mm_s(cmd_mm, ts_s)
+    return twin_memory(profile) if v_start > 0 else 0
+
+
+def check_log(log: MotionLog, profile, *, predicted_mm: np.ndarray | None = None) -> list[str]:
+    """Raise LogError if the log is from the wrong machine, too short, motionless or clipped;
+    return the one-line warnings it deserves (starts/ends mid-motion, short motion).
+
+    ``predicted_mm`` (K, 2): the twin's mean prediction of X, Y for the residual check; it is
+    judged after ``log.warmup``."""
     name = log.source
     if not np.isclose(log.ts_s, profile.ts_s, rtol=1e-3):
         raise LogError(f"{name}: sample period {log.ts_s:.6g} s differs from machine "
                        f"{profile.name!r} Ts={profile.ts_s:g} s; wrong machine? pass the "
                        f"profile the log was recorded with")
     K = log.cmd_mm.shape[0]
-    n_min = profile.twin.n_taps
-    if K < n_min:
-        raise LogError(f"{name}: {K} samples ({K * log.ts_s:.2f} s) is shorter than the twin's "
-                       f"impulse response ({n_min} samples); truncated? log the whole job")
-    travel = np.ptp(log.cmd_mm[:, :2], axis=0)
+    w0 = int(log.warmup)
+    n_min = min_usable_samples(profile)
+    if K - w0 < n_min:
+        after = (f" after the {w0}-sample warm-up of a log that starts mid-motion"
+                 if w0 else "")
+        raise LogError(f"{name}: too short: {max(K - w0, 0)} samples{after}, fewer than the "
+                       f"twin's {n_min} weights (log of {K} samples, {K * log.ts_s:.2f} s); "
+                       f"log at least {w0 + n_min} samples ({(w0 + n_min) * log.ts_s:.2f} s)")
+    use = slice(w0, K)
+    travel = np.ptp(log.cmd_mm[use, :2], axis=0)
     if np.all(travel < MIN_TRAVEL_MM):
-        raise LogError(f"{name}: no motion: commanded X/Y range {travel[0]:.3g}/{travel[1]:.3g} mm "
-                       f"(< {MIN_TRAVEL_MM} mm); log a print, not an idle machine")
+        where = f" after the {w0}-sample warm-up" if w0 else ""
+        raise LogError(f"{name}: no motion: commanded X/Y range {travel[0]:.3g}/{travel[1]:.3g} mm"
+                       f"{where} (< {MIN_TRAVEL_MM} mm); log a print, not an idle machine")
+    notes = []
     if log.kind == "encoder":
-        v_end = np.abs(log.cmd_mm[-1, :2] - log.cmd_mm[-2, :2]) / log.ts_s
-        if np.any(v_end > END_SPEED_MM_S):
-            raise LogError(f"{name}: truncated: the command still moves at "
-                           f"{float(np.max(v_end)):.1f} mm/s at the last sample "
-                           f"(t={K * log.ts_s:.2f} s); log until the machine stops")
         for i, ax in enumerate("xy"):
-            if travel[i] < MIN_TRAVEL_MM:
+            if np.ptp(log.cmd_mm[:, i]) < MIN_TRAVEL_MM:
                 continue
             m = log.pos_mm[:, i]
             moving = np.abs(np.gradient(log.cmd_mm[:, i])) > 1e-9
@@ -124,16 +207,36 @@ def check_log(log: MotionLog, profile, *, predicted_mm: np.ndarray | None = None
                     raise LogError(f"{name}: measured {ax} is clipped: {run} samples flat at "
                                    f"{extreme:.6g} mm while the command moves (limit "
                                    f"{CLIP_RUN}); check the encoder range")
+        v_start, v_end = edge_speeds_mm_s(log.cmd_mm, log.ts_s)
+        if v_start > 0:
+            notes.append(f"{name}: starts mid-motion (the command moves at {v_start:.3g} mm/s "
+                         f"at t=0): its first {w0} samples ({w0 * log.ts_s:.2f} s, the twin's "
+                         f"memory) depend on motion before the log and are left out of scores "
+                         f"and learning")
+        if v_end > 0:
+            notes.append(f"{name}: ends mid-motion (the command moves at {v_end:.3g} mm/s at "
+                         f"its last sample, t={(K - 1) * log.ts_s:.2f} s): used as is, the "
+                         f"twin is causal")
+        step = np.linalg.norm(np.diff(log.cmd_mm[use, :2], axis=0), axis=1)
+        n_moving = int(np.count_nonzero(step > END_SPEED_MM_S * log.ts_s))
+        n_taps = int(profile.twin.n_taps)
+        if n_moving < n_taps:
+            notes.append(f"{name}: short motion: the command moves during {n_moving} samples "
+                         f"({n_moving * log.ts_s:.2f} s{' after the warm-up' if w0 else ''}), "
+                         f"fewer than the twin's impulse response ({n_taps} samples, "
+                         f"{n_taps * log.ts_s:.2f} s): too short to identify much; log a "
+                         f"longer stretch of the print")
     if predicted_mm is not None:
         for i, ax in enumerate("xy"):
             if travel[i] < MIN_TRAVEL_MM:
                 continue
-            motion = float(np.std(log.cmd_mm[:, i]))
-            r = float(np.sqrt(np.mean((log.pos_mm[:, i] - predicted_mm[:, i]) ** 2)))
+            motion = float(np.std(log.cmd_mm[use, i]))
+            r = float(np.sqrt(np.mean((log.pos_mm[use, i] - predicted_mm[use, i]) ** 2)))
             if r > MAX_RESIDUAL_RATIO * motion:
                 raise LogError(f"{name}: the twin of {profile.name!r} misses axis {ax} by "
                                f"{r:.3g} mm RMS, {r / motion:.0%} of the motion (limit "
                                f"{MAX_RESIDUAL_RATIO:.0%}); wrong machine or a broken sensor")
+    return notes
 
 
 def _longest_run(mask: np.ndarray) -> int:
@@ -218,9 +321,15 @@ def read_klipper_raw(path, profile, *, n_modes: int = 3, axis: str = "x") -> Mot
                            "warnings": list(res.warnings)})
 
 
+#: The header ``optimize --trajectory`` writes: a plan (commands only), not an encoder log.
+TRAJECTORY_HEADER = "t,x,y,z,e"
+
+
 def load_log(path, profile, *, check: bool = True, raw_axis: str = "x") -> MotionLog:
     """Read an encoder log or a Klipper raw recording (by its header; ``raw_axis``: the
-    profile axis a raw recording is compared with) and check it."""
+    profile axis a raw recording is compared with) and check it (``check_log``; its warnings
+    are issued as ``LogWarning``). An encoder log that starts mid-motion gets its
+    ``warmup`` (module docstring)."""
     name = os.fspath(path)
     try:
         with open(name, "rb") as f:
@@ -229,16 +338,22 @@ def load_log(path, profile, *, check: bool = True, raw_axis: str = "x") -> Motio
         raise LogError(f"{name}: cannot read the log ({exc.strerror})") from None
     if head.startswith("#time"):
         log = read_klipper_raw(name, profile, axis=raw_axis)
+    elif head.replace(" ", "") == TRAJECTORY_HEADER:
+        raise LogError(f"{name}:1: header {head!r} is a planned trajectory (optimize "
+                       f"--trajectory: commands only), not a log of the machine; `predict` "
+                       f"reads it, learning and diagnosis need the measured positions "
+                       f"(t,x_cmd,y_cmd,x,y)")
     else:
         log = read_encoder(name)
+        log = dataclasses.replace(log, warmup=log_warmup(log.cmd_mm, log.ts_s, profile))
     if check:
         from .diagnose import nominal_impulse
         from ..vm.plant import respond
 
         pred = None
-        if log.kind == "encoder" and np.isclose(log.ts_s, profile.ts_s, rtol=1e-3) \
-                and log.cmd_mm.shape[0] >= profile.twin.n_taps:
+        if log.kind == "encoder" and np.isclose(log.ts_s, profile.ts_s, rtol=1e-3):
             imp = nominal_impulse(profile)
             pred = np.column_stack([respond(log.cmd_mm[:, i], imp[ax][0]) for i, ax in enumerate("xy")])
-        check_log(log, profile, predicted_mm=pred)
+        for note in check_log(log, profile, predicted_mm=pred):
+            warnings.warn(note, LogWarning, stacklevel=2)
     return log

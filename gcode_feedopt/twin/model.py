@@ -42,7 +42,20 @@ class AxisTwin:
     curvature: str = "moment"
 
     def run(self, x_cmd: np.ndarray, x_meas: np.ndarray | None = None, *, learn: bool = True,
-            sigma_eps_mm: float | None = None):
+            sigma_eps_mm: float | None = None, offset_mm: np.ndarray | None = None,
+            extra_var_mm2: float = 0.0, warmup: int = 0):
+        """``_run`` with a profile's extensions (``twin.extensions``): the known deterministic
+        term ``offset_mm`` (T,) is taken off the measurements and added to the prediction, the
+        variance ``extra_var_mm2`` (a fan of unknown phase) added to its variance."""
+        if offset_mm is None and not extra_var_mm2:
+            return self._run(x_cmd, x_meas, learn=learn, sigma_eps_mm=sigma_eps_mm, warmup=warmup)
+        off = np.zeros(np.size(x_cmd)) if offset_mm is None else np.asarray(offset_mm, float)
+        meas = None if x_meas is None else np.asarray(x_meas, float) - off
+        mean, std = self._run(x_cmd, meas, learn=learn, sigma_eps_mm=sigma_eps_mm, warmup=warmup)
+        return mean + off, np.sqrt(std * std + float(extra_var_mm2))
+
+    def _run(self, x_cmd: np.ndarray, x_meas: np.ndarray | None = None, *, learn: bool = True,
+             sigma_eps_mm: float | None = None, warmup: int = 0):
         """Predict (and learn) over a trajectory.
 
         Args:
@@ -53,6 +66,12 @@ class AxisTwin:
                 measurements; with measurements, the sensor's noise estimated from them
                 (``noise_floor_mm`` of measured − physics, never assumed), and while learning
                 also the level of what the twin still cannot explain (see ``_run_joint``).
+            warmup: samples at the start whose prediction depends on motion before x_cmd[0]
+                (a log that starts mid-motion, ``closedloop.logs.twin_memory``): the history
+                of the convolution is held at x_cmd[0]; these samples are predicted but
+                neither learned from nor used for the noise estimate, so from ``warmup`` on the
+                output does not depend on that unknown past (nor on x_meas before it, beyond
+                the features' own lags).
 
         Returns:
             mean (T,), std (T,) of the predicted actual position, mm; the weights are left
@@ -75,7 +94,8 @@ class AxisTwin:
         if sigma_eps_mm is not None:
             self.sigma2 = float(sigma_eps_mm) ** 2
         elif x_meas is not None:
-            self.sigma2 = sensor_noise_mm(np.asarray(x_meas, float) - xm, Y) ** 2
+            w0 = min(int(warmup), x_cmd.size - 8) if warmup > 0 else 0
+            self.sigma2 = sensor_noise_mm(np.asarray(x_meas, float)[w0:] - xm[w0:], Y[:, w0:]) ** 2
         xm = xm - ref
         if not self.use_feature_var:
             xv = np.zeros_like(xv)
@@ -100,7 +120,7 @@ class AxisTwin:
         M, V = feature_matrix(xm, xv, e, n2, n3)
         first_e = 2 + n2
         if measured and Y.shape[0] > 0:
-            return self._run_joint(M, Y, x_meas - ref, lag_x, lag_e, maxlag, ref)
+            return self._run_joint(M, Y, x_meas - ref, lag_x, lag_e, maxlag, ref, warmup)
         for t in range(T):
             row = M[t]
             if not measured:
@@ -118,7 +138,7 @@ class AxisTwin:
             v_t = quad + float(row @ cov @ row) + float(np.diag(cov) @ V[t]) + s2
             mean[t] = m_t
             var[t] = v_t
-            if measured:
+            if measured and t >= warmup:
                 # moment-form update with the full feature covariance in s
                 Cp = cov @ row
                 k = Cp / (quad + s2 + float(row @ Cp))
@@ -129,7 +149,7 @@ class AxisTwin:
         self.mu, self.cov = mu, 0.5 * (cov + cov.T)
         return mean + ref, np.sqrt(np.maximum(var, 0.0))
 
-    def _run_joint(self, M, Y, x_dev, lag_x, lag_e, maxlag, ref):
+    def _run_joint(self, M, Y, x_dev, lag_x, lag_e, maxlag, ref, warmup=0):
         """Learning with the plant draw as a latent variable.
 
         The known uncertainty is one fixed machine of the population: x̂(t) = E x̂(t) + Y_tᵀ z
@@ -177,6 +197,8 @@ class AxisTwin:
             v_t = jcj + max(s2, lam)
             mean[t] = m_t
             var[t] = v_t
+            if t < warmup:  # the unknown past still shapes this sample: do not learn from it
+                continue
             k = CJ / v_t
             innov = x_dev[t] - m_t
             lam += NOISE_FORGET * (innov * innov - jcj - lam)
