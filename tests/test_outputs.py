@@ -244,3 +244,19 @@ def test_cli_file_size_limit_is_one_line_and_no_debris(tmp_path):
     assert "\n" not in line and "cannot write" in line and len(line) <= 300
     assert names(tmp_path) == ["in.gcode"]
     assert (tmp_path / "in.gcode").read_bytes() == GOOD
+
+
+def test_failure_log_is_appended_safely(tmp_path):
+    from gcode_feedopt.hosts.prusaslicer import write_failure_log
+
+    g = tmp_path / "p.gcode"
+    g.write_bytes(GOOD)
+    log = write_failure_log(g, "first")
+    assert write_failure_log(g, "second") == log
+    lines = log.read_text().splitlines()
+    assert len(lines) == 2 and lines[0].endswith(" first") and lines[1].endswith(" second")
+    mask = os.umask(0)
+    os.umask(mask)
+    assert stat.S_IMODE(os.stat(log).st_mode) == 0o666 & ~mask
+    assert names(tmp_path) == ["p.gcode", "p.gcode.feedopt.log"]
+    assert write_failure_log(tmp_path / "nodir" / "x.gcode", "x") is None
