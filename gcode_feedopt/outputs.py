@@ -271,8 +271,8 @@ def _write_error(t: Target, exc: OSError) -> OutputError:
            errno.EACCES: "check the permissions or write elsewhere",
            errno.EPERM: "check the permissions or write elsewhere",
            errno.EFBIG: "write to another file system"}.get(exc.errno, "check the path")
-    return OutputError(f"{_label(t.option)}{t.path}: cannot write ({what}); {fix}; nothing was "
-                       "written")
+    return OutputError(f"{_label(t.option)}{t.path}: cannot write ({what}); {fix}; the file "
+                       "is left as it was")
 
 
 def _finish(tmp: str, t: Target) -> None:

@@ -150,12 +150,17 @@ def check_run_outputs(in_path, out_path, opts: Options, extra: dict | None = Non
     """Check the input and every output of a run before anything is read or written
     (outputs.check_outputs); ``extra``: more option -> path (e.g. ``--report``)."""
     in_path = check_input(in_path, "input")
+    # an in-place edit (no -o) names no option in its messages
+    key = "-o" if out_path is not None and pathlib.Path(out_path) != in_path else "output"
     out_path = pathlib.Path(out_path) if out_path is not None else in_path
-    outs = {"-o": None if opts.dry_run else out_path,
+    outs = {key: None if opts.dry_run else out_path,
             "--trajectory": None if opts.dry_run else opts.trajectory,
             "--plot": opts.plot, **(extra or {})}
-    return check_outputs(outs, inputs=[in_path, *inputs], in_place=["-o"],
-                         suffixes={"--plot": PLOT_SUFFIXES})
+    targets = check_outputs(outs, inputs=[in_path, *inputs], in_place=[key],
+                            suffixes={"--plot": PLOT_SUFFIXES})
+    if key in targets:
+        targets["-o"] = targets.pop(key)
+    return targets
 
 
 def optimize_file(in_path, out_path, profile, opts: Options) -> Report:

@@ -260,3 +260,45 @@ def test_failure_log_is_appended_safely(tmp_path):
     assert stat.S_IMODE(os.stat(log).st_mode) == 0o666 & ~mask
     assert names(tmp_path) == ["p.gcode", "p.gcode.feedopt.log"]
     assert write_failure_log(tmp_path / "nodir" / "x.gcode", "x") is None
+
+
+def _private_mount_ok() -> bool:
+    try:
+        r = subprocess.run(["unshare", "-m", "sh", "-c", "mount -t tmpfs tmpfs /mnt"],
+                           capture_output=True, timeout=30)
+    except (OSError, subprocess.SubprocessError):
+        return False
+    return r.returncode == 0
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux") or not _private_mount_ok(),
+                    reason="needs a private mount namespace (unshare -m, root)")
+def test_cli_real_full_disk_and_read_only_file_system(tmp_path):
+    """A 96 KiB tmpfs in a private mount namespace: --trajectory fills it (ENOSPC), then the
+    file system is remounted read-only (EROFS) for an in-place edit."""
+    src = REPO / "sample_gcode" / "butterfly.gcode"
+    head = b"".join(src.read_bytes().splitlines(keepends=True)[:600])
+    (tmp_path / "src.gcode").write_bytes(head)
+    mnt = tmp_path / "mnt"
+    mnt.mkdir()
+    script = f"""
+set -e
+mount -t tmpfs -o size=96k tmpfs {mnt}
+cp {tmp_path}/src.gcode {mnt}/in.gcode
+cd {mnt}
+set +e
+{sys.executable} -m gcode_feedopt in.gcode -m ender3pro --method kinematic -q --trajectory t.csv
+echo "rc=$?"
+ls -A; cmp -s in.gcode {tmp_path}/src.gcode && echo same
+mount -o remount,ro {mnt}
+{sys.executable} -m gcode_feedopt in.gcode -m ender3pro --method kinematic -q
+echo "rc=$?"
+ls -A; cmp -s in.gcode {tmp_path}/src.gcode && echo same
+"""
+    r = subprocess.run(["unshare", "-m", "sh", "-c", script], capture_output=True, text=True,
+                       env=dict(os.environ, PYTHONPATH=str(REPO)), timeout=300)
+    out, err = r.stdout.split(), r.stderr.strip().splitlines()
+    assert out == ["rc=2", "in.gcode", "same", "rc=2", "in.gcode", "same"], (r.stdout, r.stderr)
+    assert len(err) == 2 and all(len(x) <= 300 for x in err), err
+    assert "No space left on device" in err[0] and "t.csv" in err[0]
+    assert "read-only file system" in err[1] and "-o:" not in err[1]
