@@ -22,6 +22,7 @@ from concurrent.futures import (FIRST_COMPLETED, Future, ProcessPoolExecutor, Ti
                                 wait)
 
 from .errors import Interrupted
+from .outputs import remove_temps
 
 #: signals the main process turns into Interrupted
 HANDLED = tuple(getattr(signal, n) for n in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, n))
@@ -121,10 +122,13 @@ def signal_name(signum: int) -> str:
 
 
 def _worker_term(signum, frame):
-    from .outputs import remove_temps
-
-    remove_temps()
-    os._exit(128 + signum)
+    # the last act of a worker: a second SIGTERM (the pool's manager thread terminates the
+    # workers too) must not re-enter, and nothing may keep the worker from exiting
+    signal.signal(signum, signal.SIG_IGN)
+    try:
+        remove_temps()
+    finally:
+        os._exit(128 + signum)
 
 
 def _set_parent_death_signal() -> None:
@@ -157,6 +161,10 @@ def stop_pool(pool: ProcessPoolExecutor) -> None:
     """Cancel what is queued, terminate the workers (they remove their temporary files) and
     reap them; SIGKILL after WORKER_GRACE_S."""
     procs = list((getattr(pool, "_processes", None) or {}).values())
+    # shutdown(wait=False) forgets the executor's manager thread, which may be reaping a
+    # worker at this moment (between its waitpid and setting the exit code, the process
+    # looks alive to every other thread): keep it and join it below
+    manager = getattr(pool, "_executor_manager_thread", None)
     pool.shutdown(wait=False, cancel_futures=True)
     for p in procs:
         with contextlib.suppress(Exception):
@@ -169,6 +177,13 @@ def stop_pool(pool: ProcessPoolExecutor) -> None:
                 p.join(WORKER_GRACE_S)
     with contextlib.suppress(Exception):  # reap the manager thread now, not at exit
         pool.shutdown(wait=True)
+        if manager is not None:
+            manager.join(WORKER_GRACE_S)
+    for p in procs:  # a join that raced with the manager's may have returned early
+        with contextlib.suppress(Exception):
+            deadline = time.monotonic() + WORKER_GRACE_S
+            while p.is_alive() and time.monotonic() < deadline:
+                p.join(0.05)
 
 
 def _wait(fut: Future):

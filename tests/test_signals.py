@@ -204,3 +204,22 @@ def test_worker_pool_map_order_and_stop_on_interrupt():
             raise KeyboardInterrupt
     assert time.monotonic() - t0 < 10  # the running 30 s jobs were not waited for
     assert workers and not any(w.is_alive() for w in workers)
+
+
+def test_worker_exits_on_a_repeated_sigterm():
+    # the pool's manager thread terminates workers too: a second SIGTERM arriving while the
+    # first one's handler runs must not leave the worker running (it used to re-enter an
+    # import, fail, and go on with the next job until SIGKILL five seconds later)
+    from gcode_feedopt import procs
+
+    for _ in range(5):
+        with pytest.raises(KeyboardInterrupt):
+            with procs.worker_pool(2) as pool:
+                [pool.submit(_sleep, 30) for _ in range(4)]
+                workers = list(pool.executor._processes.values())
+                time.sleep(0.3)
+                for _ in range(3):
+                    for w in workers:
+                        w.terminate()
+                raise KeyboardInterrupt
+        assert [w.exitcode for w in workers] == [143, 143]  # by its handler, not SIGKILL
