@@ -1,0 +1,196 @@
+"""End to end where the tolerance binds (issue 19, point 7): kinematic / conservative / pidd /
+oracle planned, executed on a plant and judged on the plant.
+
+A scenario is a machine, a path, the kinematic limits V and A, E_max and the stringencies η.
+The machine is a profile (``ender3pro``, or ``benchA``: built from the 12 FRFs of
+../shared/data/independent/frf as ``profile build`` builds it) with its X/Y acceleration limits
+(profile and firmware M201) raised to the scenario's A, and the plant is one seeded draw of that
+profile's own uncertainty (vm.plant.Plant): a machine of the population the twin describes, not
+its mean.
+
+Per η it prints, for every method, the whole-run cycle time, the time on the extruded contour,
+RMS γ against the paper's limit (1 − η)·E_max, the fraction of extruded samples within E_max
+and the plan's compute time:
+
+- ``kinematic``: the firmware's plan at V, A;
+- ``conservative``: the largest uniform scale of V and A whose run *on this plant* keeps
+  RMS γ ≤ (1 − η)·E_max (optimize.methods.largest_passing_scale: the paper's rule; it is tuned on
+  the plant, so it knows more than any planner that ships);
+- ``pidd``: what `gcode-feedopt optimize` does (the offline slow-down optimizer with the
+  profile's twin; it never sees the plant);
+- ``oracle``: the same optimizer knowing the plant exactly (the physical limit).
+
+and the targets: pidd ≤ 0.75 × conservative's cycle where the tolerance binds, RMS γ within
+(1 − η)·E_max, within ≥ η; where the tolerance does not bind (the kinematic plan already
+passes), pidd = kinematic.
+
+    python benchmarks/end_to_end.py [--scenario butterfly-ender3pro,...] [--eta 0.9,0.95,0.99]
+                                    [--seed 1] [--methods kinematic,conservative,pidd,oracle]
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import math
+import pathlib
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+REPO = pathlib.Path(__file__).resolve().parents[1]
+INDEPENDENT = REPO.parent / "shared" / "data" / "independent"
+BUTTERFLY = REPO / "sample_gcode" / "butterfly.gcode"
+
+#: name: (machine, path, V mm/s, A mm/s², E_max mm)
+SCENARIOS = {
+    "butterfly-ender3pro": ("ender3pro", "butterfly", 150.0, 5000.0, 0.05),
+    "butterfly-benchA": ("benchA", "butterfly", 150.0, 5000.0, 0.05),
+    "rose-ender3pro": ("ender3pro", "rose", 250.0, 8000.0, 0.1),
+    "rose-benchA": ("benchA", "rose", 250.0, 8000.0, 0.1),
+    # the tolerance does not bind: the profile's own limits and E_max
+    "butterfly-ender3pro-loose": ("ender3pro", "butterfly", 70.0, 3000.0, 0.1),
+}
+METHODS = ("kinematic", "conservative", "pidd", "oracle")
+
+
+def machine(name: str):
+    """The profile of a machine name (``benchA``: built from benchA's FRFs)."""
+    from gcode_feedopt.profile import load_profile
+
+    if name == "benchA":
+        from gcode_feedopt.profile.build import build_from_frfs
+
+        frf = INDEPENDENT / "frf"
+        prof, _ = build_from_frfs(load_profile("ender3pro"),
+                                  {a: sorted(frf.glob(f"{a}_*.csv")) for a in "xy"}, name="benchA")
+        return prof
+    return load_profile(name)
+
+
+def with_limits(prof, vmax_mm_s: float, amax_mm_s2: float):
+    """The profile with V and the X/Y acceleration limits (profile and firmware) set."""
+    lim, fw = prof.limits, prof.firmware
+    ax_a = dict(lim.axis_amax_mm_s2, x=amax_mm_s2, y=amax_mm_s2)
+    fw_a = dict(fw.max_accel_mm_s2, x=amax_mm_s2, y=amax_mm_s2)
+    ax_v = {k: max(v, vmax_mm_s) if k in "xy" else v for k, v in lim.axis_vmax_mm_s.items()}
+    fw_v = {k: max(v, vmax_mm_s) if k in "xy" else v for k, v in fw.max_feed_mm_s.items()}
+    return dataclasses.replace(
+        prof, limits=dataclasses.replace(lim, vmax_mm_s=vmax_mm_s, amax_mm_s2=amax_mm_s2,
+                                         axis_amax_mm_s2=ax_a, axis_vmax_mm_s=ax_v),
+        firmware=dataclasses.replace(fw, accel_mm_s2=amax_mm_s2, travel_accel_mm_s2=amax_mm_s2,
+                                     max_accel_mm_s2=fw_a, max_feed_mm_s=fw_v))
+
+
+def rose_gcode(path: pathlib.Path, *, radius_mm: float = 40.0, petals: int = 5,
+               n: int = 2000) -> pathlib.Path:
+    """benchA's ``rose5`` path, r = R cos(k t), t ∈ [0, π], centred at (110, 110), as one
+    extruded polyline of ``n`` chords (chord error < 1 µm at n = 2000)."""
+    t = np.linspace(0.0, math.pi, n + 1)
+    r = radius_mm * np.cos(petals * t)
+    x, y = 110.0 + r * np.cos(t), 110.0 + r * np.sin(t)
+    seg = np.hypot(np.diff(x), np.diff(y))
+    e = np.concatenate([[0.0], np.cumsum(seg) * 0.033])
+    lines = ["; rose r = 40 cos 5t (benchA's rose5), one layer", "G21", "G90", "M82", "G92 E0",
+             f"G0 X{x[0]:.4f} Y{y[0]:.4f} Z0.200 F6000", "G1 F1800"]
+    lines += [f"G1 X{x[i]:.4f} Y{y[i]:.4f} E{e[i]:.5f}" for i in range(1, n + 1)]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def scenario_path(kind: str, prof, tmp: pathlib.Path):
+    from gcode_feedopt.pipeline import path_for, read_for
+
+    src = BUTTERFLY if kind == "butterfly" else rose_gcode(tmp / "rose.gcode")
+    return path_for(read_for(src, prof), prof)
+
+
+@dataclasses.dataclass
+class Row:
+    method: str
+    cycle_s: float
+    contour_s: float
+    rms_gamma_um: float
+    within: float
+    compute_s: float
+    info: dict
+
+
+def run(method, path, prof, plant, tol, eta, **opts) -> Row:
+    """Plan ``method``, execute the plan on ``plant``, judge it there."""
+    from gcode_feedopt.optimize.methods import plan_schedule, vm_trajectory
+    from gcode_feedopt.vm.metrics import evaluate
+
+    t0 = time.perf_counter()
+    sch = plan_schedule(method, path, prof, tolerance_mm=tol, stringency=eta, plant=plant, **opts)
+    dt = time.perf_counter() - t0
+    tr = vm_trajectory(path, sch.s_mm, sch.ts_s)
+    m = evaluate(tr, plant.run(tr), tol)
+    return Row(method, m.cycle_time_s, m.n_evaluated * tr.ts_s, 1000 * m.rms_gamma_mm,
+               m.within_fraction, dt, dict(sch.info))
+
+
+def verdict(rows: dict, tol: float, eta: float) -> str:
+    """The point-7 targets of this η, one line."""
+    lim = 1000 * (1 - eta) * tol
+    k, c, p = rows.get("kinematic"), rows.get("conservative"), rows.get("pidd")
+    if p is None:
+        return ""
+    ok_g = p.rms_gamma_um <= lim + 1e-9
+    ok_w = p.within >= eta
+    parts = [f"RMS γ {p.rms_gamma_um:.2f} ≤ {lim:.2f} µm: {'met' if ok_g else 'NOT met'}",
+             f"within {p.within:.4f} ≥ {eta:g}: {'met' if ok_w else 'NOT met'}"]
+    if c is not None:
+        binds = c.info.get("conservative_scale", 1.0) < 1.0
+        if binds:
+            ratio = p.cycle_s / c.cycle_s
+            parts.append(f"pidd/conservative {ratio:.3f} ≤ 0.75: {'met' if ratio <= 0.75 else 'NOT met'}")
+        elif k is not None:
+            same = abs(p.cycle_s - k.cycle_s) <= 0.5 * 0.002
+            parts.append(f"not binding (conservative x1): pidd = kinematic "
+                         f"{'met' if same else 'NOT met'} ({p.cycle_s:.3f} vs {k.cycle_s:.3f} s)")
+    return "; ".join(parts)
+
+
+def main(argv=None):
+    from gcode_feedopt.vm.plant import Plant
+
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--scenario", default="butterfly-ender3pro,butterfly-benchA")
+    ap.add_argument("--eta", default="0.9,0.95,0.99")
+    ap.add_argument("--seed", type=int, default=1, help="plant draw")
+    ap.add_argument("--methods", default=",".join(METHODS))
+    a = ap.parse_args(argv)
+    tmp = pathlib.Path(tempfile.mkdtemp())
+    methods = [m for m in a.methods.split(",") if m]
+    for name in a.scenario.split(","):
+        mach, kind, V, A, tol = SCENARIOS[name]
+        prof = with_limits(machine(mach), V, A)
+        path = scenario_path(kind, prof, tmp)
+        plant = Plant(prof, seed=a.seed)
+        print(f"\n== {name}: {mach} draw seed {a.seed}, {kind}, V {V:g} mm/s, A {A:g} mm/s², "
+              f"E_max {tol:g} mm")
+        print(f"{'η':>5} {'method':>13} {'cycle s':>8} {'contour s':>9} {'RMS γ µm':>9} "
+              f"{'limit':>6} {'within':>7} {'compute s':>9}  note")
+        for eta in (float(e) for e in a.eta.split(",")):
+            rows = {}
+            for m in methods:
+                r = run(m, path, prof, plant, tol, eta)
+                rows[m] = r
+                note = ""
+                if m == "conservative":
+                    note = f"limits x {r.info.get('conservative_scale', 1.0):.3f}"
+                elif m in ("pidd", "oracle"):
+                    note = (f"slowed {100 * r.info.get('slowed_length_fraction', 0):.0f} % of length, "
+                            f"given up {r.info.get('relaxed_samples', 0)}")
+                print(f"{eta:5.2f} {m:>13} {r.cycle_s:8.3f} {r.contour_s:9.3f} "
+                      f"{r.rms_gamma_um:9.2f} {1000 * (1 - eta) * tol:6.2f} {r.within:7.4f} "
+                      f"{r.compute_s:9.2f}  {note}")
+                sys.stdout.flush()
+            print(f"      targets: {verdict(rows, tol, eta)}")
+
+
+if __name__ == "__main__":
+    main()
