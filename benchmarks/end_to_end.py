@@ -54,6 +54,9 @@ SCENARIOS = {
     "butterfly-ender3pro-loose": ("ender3pro", "butterfly", 70.0, 3000.0, 0.1),
 }
 METHODS = ("kinematic", "conservative", "pidd", "oracle")
+#: a method name with ``:window`` plans with the receding-window LP (optimize.mpc, the paper's
+#: full method) instead of the slow-down optimizer
+OPTIMIZED = ("pidd", "oracle")
 
 
 def machine(name: str):
@@ -123,8 +126,11 @@ def run(method, path, prof, plant, tol, eta, **opts) -> Row:
     from gcode_feedopt.optimize.methods import plan_schedule, vm_trajectory
     from gcode_feedopt.vm.metrics import evaluate
 
+    name, _, optimizer = method.partition(":")
+    if optimizer:
+        opts["optimizer"] = optimizer
     t0 = time.perf_counter()
-    sch = plan_schedule(method, path, prof, tolerance_mm=tol, stringency=eta, plant=plant, **opts)
+    sch = plan_schedule(name, path, prof, tolerance_mm=tol, stringency=eta, plant=plant, **opts)
     dt = time.perf_counter() - t0
     tr = vm_trajectory(path, sch.s_mm, sch.ts_s)
     m = evaluate(tr, plant.run(tr), tol)
@@ -135,18 +141,21 @@ def run(method, path, prof, plant, tol, eta, **opts) -> Row:
 def verdict(rows: dict, tol: float, eta: float) -> str:
     """The point-7 targets of this η, one line."""
     lim = 1000 * (1 - eta) * tol
-    k, c, p = rows.get("kinematic"), rows.get("conservative"), rows.get("pidd")
-    if p is None:
-        return ""
+    k, c = rows.get("kinematic"), rows.get("conservative")
+    return " | ".join(_verdict(m, p, k, c, lim, eta) for m, p in rows.items()
+                      if m.startswith("pidd"))
+
+
+def _verdict(name, p, k, c, lim, eta):
     ok_g = p.rms_gamma_um <= lim + 1e-9
     ok_w = p.within >= eta
-    parts = [f"RMS γ {p.rms_gamma_um:.2f} ≤ {lim:.2f} µm: {'met' if ok_g else 'NOT met'}",
+    parts = [f"{name}: RMS γ {p.rms_gamma_um:.2f} ≤ {lim:.2f} µm: {'met' if ok_g else 'NOT met'}",
              f"within {p.within:.4f} ≥ {eta:g}: {'met' if ok_w else 'NOT met'}"]
     if c is not None:
         binds = c.info.get("conservative_scale", 1.0) < 1.0
         if binds:
             ratio = p.cycle_s / c.cycle_s
-            parts.append(f"pidd/conservative {ratio:.3f} ≤ 0.75: {'met' if ratio <= 0.75 else 'NOT met'}")
+            parts.append(f"/conservative {ratio:.3f} ≤ 0.75: {'met' if ratio <= 0.75 else 'NOT met'}")
         elif k is not None:
             same = abs(p.cycle_s - k.cycle_s) <= 0.5 * 0.002
             parts.append(f"not binding (conservative x1): pidd = kinematic "
@@ -182,6 +191,9 @@ def main(argv=None):
                 note = ""
                 if m == "conservative":
                     note = f"limits x {r.info.get('conservative_scale', 1.0):.3f}"
+                elif m.partition(":")[2] == "window":
+                    note = (f"relaxed windows {r.info.get('relaxed_windows', 0)}, "
+                            f"fallbacks {r.info.get('fallback_windows', 0)}")
                 elif m in ("pidd", "oracle"):
                     note = (f"slowed {100 * r.info.get('slowed_length_fraction', 0):.0f} % of length, "
                             f"given up {r.info.get('relaxed_samples', 0)}")
