@@ -58,6 +58,8 @@ class Round:
     pred_rms_um: dict
     learned: dict
     compute_s: float
+    pred_after_um: dict
+    step_scale: dict
 
 
 def fan_plant(prof, seed: int, axis: str, freq_hz: float, amp_mm: float, phase_rad: float,
@@ -89,8 +91,11 @@ def closed_loop(prof, path, *, rounds: int, seed: int, fan: tuple, tol: float, e
             log = load_log(log_path, prof)
         prof, recs = learn_logs(prof, [log])
         pred = {r["axis"]: 1000 * r["prediction_rms_mm"]["before"] for r in recs}
+        after = {r["axis"]: 1000 * r["prediction_rms_mm"]["after"] for r in recs}
+        steps = {r["axis"]: r["step_scale"] for r in recs}
         learned = {r["axis"]: 1000 * r.get("noise_level_mm", float("nan")) for r in recs}
-        r = Round(k, m.cycle_time_s, 1000 * m.rms_gamma_mm, m.within_fraction, pred, learned, dt)
+        r = Round(k, m.cycle_time_s, 1000 * m.rms_gamma_mm, m.within_fraction, pred, learned, dt,
+                  after, steps)
         out.append(r)
         if on_round:
             on_round(r)
@@ -124,12 +129,14 @@ def main(argv=None):
           f"per print), butterfly, V {a.vmax:g} mm/s, A {a.amax:g} mm/s², E_max {a.tolerance:g} mm, "
           f"η {a.eta:g}; conservative {cons_s:.3f} s (limits x {scale:.3f})")
     print(f"{'print':>5} {'cycle s':>8} {'RMS γ µm':>9} {'limit':>6} {'within':>7} "
-          f"{'pred x µm':>9} {'pred y µm':>9} {'level x µm':>10} {'level y µm':>10} {'plan s':>7}")
+          f"{'pred x µm':>9} {'pred y µm':>9} {'level x µm':>10} {'level y µm':>10} {'plan s':>7}"
+          f"  learned step (prediction RMS after, µm)")
 
     def show(r):
         print(f"{r.k:5d} {r.cycle_s:8.3f} {r.rms_gamma_um:9.2f} {lim:6.2f} {r.within:7.4f} "
               f"{r.pred_rms_um.get('x', np.nan):9.1f} {r.pred_rms_um.get('y', np.nan):9.1f} "
-              f"{r.learned.get('x', np.nan):10.1f} {r.learned.get('y', np.nan):10.1f} {r.compute_s:7.2f}")
+              f"{r.learned.get('x', np.nan):10.1f} {r.learned.get('y', np.nan):10.1f} {r.compute_s:7.2f}  "
+              + ", ".join(f"{a} x{r.step_scale[a]:.2g} ({r.pred_after_um[a]:.1f})" for a in r.step_scale))
         sys.stdout.flush()
 
     rows, _ = closed_loop(prof, path, rounds=a.rounds, seed=a.seed, fan=fan, tol=a.tolerance,

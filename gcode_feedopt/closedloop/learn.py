@@ -33,6 +33,7 @@ from __future__ import annotations
 import dataclasses
 import datetime
 import hashlib
+import math
 import os
 
 import numpy as np
@@ -53,6 +54,29 @@ def open_loop_rms(twin, x_cmd, x_meas, warmup: int = 0) -> float:
     return float(np.sqrt(np.mean((mean[warmup:] - np.asarray(x_meas)[warmup:]) ** 2)))
 
 
+def unexplained_level_mm(twin, x_cmd, x_meas, warmup: int = 0) -> float:
+    """RMS of what ``twin`` cannot predict on a log open loop (as the optimizer predicts),
+    after the ``warmup`` samples: the residual measured − open-loop prediction, less the part
+    the profile's own spread explains (the plant draw, directions Y of the known uncertainty
+    with z ~ N(0, I), fitted by ridge least squares at the residual's own level: the next
+    print's twin still carries that spread in its interval, so counting it here would count it
+    twice). A fan, a disturbance no command explains, stays in it whatever its phase."""
+    from ..twin.features import factor_series
+
+    x_cmd = np.asarray(x_cmd, float)
+    mean, _ = dataclasses.replace(twin).run(x_cmd, None, learn=False)
+    w0 = int(warmup)
+    r = np.asarray(x_meas, float)[w0:] - mean[w0:]
+    if r.size == 0:
+        return 0.0
+    Y = factor_series(twin.ir, x_cmd - x_cmd[0])[:, w0:]
+    s2 = float(np.mean(r * r))
+    if Y.shape[0] and s2 > 0.0:
+        z = np.linalg.solve(Y @ Y.T + s2 * np.eye(Y.shape[0]), Y @ r)
+        r = r - z @ Y
+    return float(np.sqrt(np.mean(r * r)))
+
+
 def _sha(path) -> str:
     try:
         with open(path, "rb") as f:
@@ -66,7 +90,7 @@ def learn_axis(profile, axis: str, x_cmd, x_meas, *, source: str = "", sha: str 
     """(Prior, record) for one axis from one log's commanded/measured positions; the first
     ``warmup`` samples (a log that starts mid-motion, ``closedloop.logs``) are neither learned
     from nor scored."""
-    from ..twin.model import axis_twin
+    from ..twin.model import axis_twin, learned_noise_mm
 
     twin = axis_twin(profile, axis, method="pidd")
     mu0, cov0 = twin.mu.copy(), twin.cov.copy()
@@ -94,15 +118,22 @@ def learn_axis(profile, axis: str, x_cmd, x_meas, *, source: str = "", sha: str 
         scale = 0.0
     clipped = scale < 1.0
     mu = mu0 + scale * step
-    after = open_loop_rms(dataclasses.replace(twin, mu=mu, cov=cov), x_cmd, x_meas, warmup)
+    learned = dataclasses.replace(twin, mu=mu, cov=cov)
+    after = open_loop_rms(learned, x_cmd, x_meas, warmup)
     prior = profile.twin.priors.get(axis)
     history = tuple(prior.learned_from) if prior is not None else ()
+    # the level of what the learned twin still cannot predict on this log, averaged (in
+    # variance) with what earlier logs measured: one print cannot talk it away
+    level_log = unexplained_level_mm(learned, x_cmd, x_meas, warmup)
+    old_level = learned_noise_mm(prior)
+    level = level_log if old_level is None else math.sqrt(0.5 * (old_level ** 2 + level_log ** 2))
     rec = {"log": source, "sha256": sha, "samples": int(len(x_cmd)), "warmup_samples": int(warmup),
            "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
            "method": f"bounded Bayesian update (prediction change <= {MAX_PRED_CHANGE_MM:g} mm RMS, "
                      f"forget {FORGET:g})",
            "prediction_rms_mm": {"before": round(before, 6), "after": round(after, 6)},
-           "step_sigmas": round(dist, 3), "step_scale": scale, "step_clipped": bool(clipped)}
+           "step_sigmas": round(dist, 3), "step_scale": scale, "step_clipped": bool(clipped),
+           "noise_level_log_mm": round(level_log, 7), "noise_level_mm": round(level, 7)}
     return Prior(mu=mu, cov=cov, learned_from=history + (rec,)), rec
 
 

@@ -119,13 +119,14 @@ def plan_conservative(path, profile, *, tolerance_mm, stringency, plant, vmax_mm
 def make_twin_predictor(profile, method: str, *, learn: bool):
     """TwinPredictor of a profile for pb | dd | pidd: the physics and the weight prior from
     the one constructor the twin itself uses (twin.physics.axis_impulse, twin.model.axis_prior)."""
-    from ..twin.model import axis_prior
+    from ..twin.model import axis_noise_mm, axis_prior
     from ..twin.physics import axis_impulse
 
     tw = profile.twin
     irs = [axis_impulse(profile, ax) for ax in ("x", "y")]
     priors = [axis_prior(profile, ax, method=method) for ax in ("x", "y")]
-    return TwinPredictor(irs, tw.n2, tw.n3, tw.sigma_eps_mm ** 2, [p[0] for p in priors],
+    s2 = [axis_noise_mm(profile, ax, method=method) ** 2 for ax in ("x", "y")]
+    return TwinPredictor(irs, tw.n2, tw.n3, s2, [p[0] for p in priors],
                          [p[1] for p in priors], use_feature_var=(method != "dd"),
                          learn=learn and method in ("dd", "pidd"))
 
@@ -169,7 +170,7 @@ def check_noise_floor(predictor, profile, tolerance_mm: float, stringency: float
     """Refuse a tolerance below what the twin can promise at rest: noise and bias alone (the
     contour error of a machine standing still); below it every sample would be given up."""
     z = float(norm.ppf(stringency))
-    floor = z * max(math.sqrt(predictor.s2 + float(c[0, 0])) for c in predictor.cov)
+    floor = z * max(math.sqrt(s2 + float(c[0, 0])) for s2, c in zip(predictor.s2, predictor.cov))
     if tolerance_mm <= 1.05 * floor:
         raise FeedOptError(
             f"tolerance {tolerance_mm:g} mm is below what the twin can promise at stringency "

@@ -258,6 +258,29 @@ def axis_prior(profile, axis: str, *, method: str = "pidd") -> tuple[np.ndarray,
     return mu, shift_invariant_cov(cov, tw.n2)
 
 
+def learned_noise_mm(prior) -> float | None:
+    """The level of what the twin cannot predict that ``learn`` measured on this axis's logs
+    (``closedloop.learn``: the RMS of the open-loop residual once the weights and the plant
+    draw have explained what they can), mm; None when nothing was learned. It is kept in the
+    last record of ``Prior.learned_from`` (``noise_level_mm``), which the profile's YAML
+    carries as it is."""
+    if prior is None:
+        return None
+    for rec in reversed(tuple(prior.learned_from)):
+        if isinstance(rec, dict) and rec.get("noise_level_mm") is not None:
+            return float(rec["noise_level_mm"])
+    return None
+
+
+def axis_noise_mm(profile, axis: str, *, method: str = "pidd") -> float:
+    """σ of what the twin of one axis cannot predict, mm, as the optimizer and an offline
+    prediction use it: the level ``learn`` measured on the machine's own logs when there is
+    one (a fan, a disturbance the profile lacks: the chance constraint keeps its margin), the
+    profile's σ_ε otherwise (and always for ``dd``, which starts from nothing)."""
+    level = None if method == "dd" else learned_noise_mm(profile.twin.priors.get(axis))
+    return profile.twin.sigma_eps_mm if level is None else max(level, NOISE_FLOOR_MIN_MM)
+
+
 def axis_twin(profile, axis: str, *, method: str = "pidd") -> AxisTwin:
     """The twin of one axis of a profile.
 
@@ -266,4 +289,5 @@ def axis_twin(profile, axis: str, *, method: str = "pidd") -> AxisTwin:
     tw = profile.twin
     mu, cov = axis_prior(profile, axis, method=method)
     return AxisTwin(ir=axis_impulse(profile, axis), n2=tw.n2, n3=tw.n3,
-                    sigma2=tw.sigma_eps_mm ** 2, mu=mu, cov=cov, use_feature_var=method != "dd")
+                    sigma2=axis_noise_mm(profile, axis, method=method) ** 2, mu=mu, cov=cov,
+                    use_feature_var=method != "dd")
