@@ -18,6 +18,9 @@ and the plan's compute time:
   the plant, so it knows more than any planner that ships);
 - ``pidd``: what `gcode-feedopt optimize` does (the offline slow-down optimizer with the
   profile's twin; it never sees the plant);
+- ``pidd+learned``: the same after one print with pidd on this machine, its encoder log
+  ``learn``ed (the weights, which machine of the profile's population this is, and the level of
+  what the twin cannot predict, in place of the profile's σ_ε = 10 µm);
 - ``oracle``: the same optimizer knowing the plant exactly (the physical limit).
 
 and the targets: pidd ≤ 0.75 × conservative's cycle where the tolerance binds, RMS γ within
@@ -53,7 +56,7 @@ SCENARIOS = {
     # the tolerance does not bind: the profile's own limits and E_max
     "butterfly-ender3pro-loose": ("ender3pro", "butterfly", 70.0, 3000.0, 0.1),
 }
-METHODS = ("kinematic", "conservative", "pidd", "oracle")
+METHODS = ("kinematic", "conservative", "pidd", "pidd+learned", "oracle")
 #: a method name with ``:window`` plans with the receding-window LP (optimize.mpc, the paper's
 #: full method) instead of the slow-down optimizer
 OPTIMIZED = ("pidd", "oracle")
@@ -121,11 +124,40 @@ class Row:
     info: dict
 
 
+def learned_once(path, prof, plant, tol, eta, tmp: pathlib.Path):
+    """The profile after one print: pidd's plan run on ``plant``, its encoder log (1 µm of
+    noise) read back and ``learn``ed (closedloop.learn: the weights, which machine of the
+    population this is, and the level of what the twin cannot predict)."""
+    import warnings
+
+    from gcode_feedopt.closedloop.learn import learn_logs
+    from gcode_feedopt.closedloop.logs import load_log
+    from gcode_feedopt.optimize.methods import plan_schedule, vm_trajectory
+    from gcode_feedopt.vm import effects as fx
+    from gcode_feedopt.vm.log import write_log
+
+    sch = plan_schedule("pidd", path, prof, tolerance_mm=tol, stringency=eta)
+    tr = vm_trajectory(path, sch.s_mm, sch.ts_s)
+    noisy = type(plant).from_impulse(plant.ts_s, plant.impulse, [
+        *plant.effects, fx.SensorNoise("x", std_mm=0.001), fx.SensorNoise("y", std_mm=0.001)],
+        seed=plant.seed + 1)
+    log = tmp / "first_print.csv"
+    write_log(log, tr.t_s, tr.pos_mm, noisy.simulate(tr).measured_mm, tr.e_mm)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return learn_logs(prof, [load_log(log, prof)])[0]
+
+
 def run(method, path, prof, plant, tol, eta, **opts) -> Row:
-    """Plan ``method``, execute the plan on ``plant``, judge it there."""
+    """Plan ``method``, execute the plan on ``plant``, judge it there. ``pidd+learned``: pidd
+    with the profile ``learn``ed from one earlier print on the same plant (``opts['tmp']``)."""
     from gcode_feedopt.optimize.methods import plan_schedule, vm_trajectory
     from gcode_feedopt.vm.metrics import evaluate
 
+    tmp = opts.pop("tmp", None)
+    if method.startswith("pidd+learned"):
+        prof = learned_once(path, prof, plant, tol, eta, tmp or pathlib.Path(tempfile.mkdtemp()))
+        method = "pidd" + method[len("pidd+learned"):]
     name, _, optimizer = method.partition(":")
     if optimizer:
         opts["optimizer"] = optimizer
@@ -186,7 +218,7 @@ def main(argv=None):
         for eta in (float(e) for e in a.eta.split(",")):
             rows = {}
             for m in methods:
-                r = run(m, path, prof, plant, tol, eta)
+                r = run(m, path, prof, plant, tol, eta, tmp=tmp)
                 rows[m] = r
                 note = ""
                 if m == "conservative":
@@ -194,7 +226,7 @@ def main(argv=None):
                 elif m.partition(":")[2] == "window":
                     note = (f"relaxed windows {r.info.get('relaxed_windows', 0)}, "
                             f"fallbacks {r.info.get('fallback_windows', 0)}")
-                elif m in ("pidd", "oracle"):
+                elif m.partition(":")[0] in ("pidd", "oracle", "pidd+learned"):
                     note = (f"slowed {100 * r.info.get('slowed_length_fraction', 0):.0f} % of length, "
                             f"given up {r.info.get('relaxed_samples', 0)}")
                 print(f"{eta:5.2f} {m:>13} {r.cycle_s:8.3f} {r.contour_s:9.3f} "

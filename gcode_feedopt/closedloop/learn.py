@@ -77,6 +77,22 @@ def unexplained_level_mm(twin, x_cmd, x_meas, warmup: int = 0) -> float:
     return float(np.sqrt(np.mean(r * r)))
 
 
+def narrowed(ir, z, S):
+    """The Gaussian impulse response ``ir`` given z ~ N(z, S Sᵀ) in its own directions:
+    mean + L z, factor L S."""
+    from ..twin.frf import ImpulseResponse
+
+    L = ir.factor @ S
+    return ImpulseResponse(ts_s=ir.ts_s, mean=ir.mean + ir.factor @ z,
+                           var=np.einsum("ij,ij->i", L, L), factor=L)
+
+
+def _sqrtm(C):
+    """Symmetric square root of a covariance (negative round-off clipped)."""
+    w, V = np.linalg.eigh(0.5 * (C + C.T))
+    return (V * np.sqrt(np.maximum(w, 0.0))) @ V.T
+
+
 def _sha(path) -> str:
     try:
         with open(path, "rb") as f:
@@ -90,7 +106,8 @@ def learn_axis(profile, axis: str, x_cmd, x_meas, *, source: str = "", sha: str 
     """(Prior, record) for one axis from one log's commanded/measured positions; the first
     ``warmup`` samples (a log that starts mid-motion, ``closedloop.logs``) are neither learned
     from nor scored."""
-    from ..twin.model import axis_twin, learned_noise_mm
+    from ..twin.model import axis_twin, learned_draw, learned_noise_mm
+    from ..twin.physics import axis_impulse
 
     twin = axis_twin(profile, axis, method="pidd")
     mu0, cov0 = twin.mu.copy(), twin.cov.copy()
@@ -100,16 +117,24 @@ def learn_axis(profile, axis: str, x_cmd, x_meas, *, source: str = "", sha: str 
         raise LogError(f"{source}: the twin's prediction misses axis {axis} by {before:.3g} mm "
                        f"RMS (limit {MAX_PRED_RMS_SIGMAS:g}·σ_ε = {MAX_PRED_RMS_SIGMAS * sigma:.3g} mm); "
                        f"not learned - run `gcode-feedopt diagnose` on it first")
+    ir0 = twin.ir
     twin.run(x_cmd, x_meas, learn=True, warmup=warmup)
     mu1, cov1 = twin.mu, twin.cov
     step = mu1 - mu0
     dist = float(np.sqrt(step @ np.linalg.pinv(cov0, hermitian=True) @ step))
     cov = cov1 + FORGET * cov0
     cov = 0.5 * (cov + cov.T)
-    base, _ = dataclasses.replace(twin, mu=mu0, cov=cov0).run(x_cmd, None, learn=False)
+    # which machine of the population this is (the plant draw z, learned with the weights):
+    # its posterior, tempered like the weights' (prior N(0, I) in the twin's coordinates)
+    r = ir0.factor.shape[1]
+    z_step = getattr(twin, "z_mean", np.zeros(r))
+    S_new = _sqrtm(getattr(twin, "z_cov", np.eye(r)) + FORGET * np.eye(r))
+    base, _ = dataclasses.replace(twin, mu=mu0, cov=cov0, ir=ir0).run(x_cmd, None, learn=False)
     scale = 1.0
     for _ in range(12):
-        mean, _ = dataclasses.replace(twin, mu=mu0 + scale * step, cov=cov).run(x_cmd, None, learn=False)
+        trial = dataclasses.replace(twin, mu=mu0 + scale * step, cov=cov,
+                                    ir=narrowed(ir0, scale * z_step, S_new))
+        mean, _ = trial.run(x_cmd, None, learn=False)
         change = float(np.sqrt(np.mean((mean[warmup:] - base[warmup:]) ** 2)))
         if change <= MAX_PRED_CHANGE_MM:
             break
@@ -118,9 +143,17 @@ def learn_axis(profile, axis: str, x_cmd, x_meas, *, source: str = "", sha: str 
         scale = 0.0
     clipped = scale < 1.0
     mu = mu0 + scale * step
+    prior = profile.twin.priors.get(axis)
+    # in the population's coordinates: h = E h + L (z0 + S0 z), z ~ N(scale·z_step, S_new²)
+    pop_r = axis_impulse(profile, axis).factor.shape[1]
+    z0, S0 = learned_draw(prior, pop_r) or (np.zeros(pop_r), np.eye(pop_r))
+    draw = None
+    if r == pop_r:
+        draw = {"z": [round(float(v), 9) for v in z0 + S0 @ (scale * z_step)],
+                "sqrt_cov": [[round(float(v), 9) for v in row] for row in S0 @ S_new]}
+    twin = dataclasses.replace(twin, ir=narrowed(ir0, scale * z_step, S_new))
     learned = dataclasses.replace(twin, mu=mu, cov=cov)
     after = open_loop_rms(learned, x_cmd, x_meas, warmup)
-    prior = profile.twin.priors.get(axis)
     history = tuple(prior.learned_from) if prior is not None else ()
     # the level of what the learned twin still cannot predict on this log, averaged (in
     # variance) with what earlier logs measured: one print cannot talk it away
@@ -134,6 +167,8 @@ def learn_axis(profile, axis: str, x_cmd, x_meas, *, source: str = "", sha: str 
            "prediction_rms_mm": {"before": round(before, 6), "after": round(after, 6)},
            "step_sigmas": round(dist, 3), "step_scale": scale, "step_clipped": bool(clipped),
            "noise_level_log_mm": round(level_log, 7), "noise_level_mm": round(level, 7)}
+    if draw is not None:
+        rec["plant_draw"] = draw
     return Prior(mu=mu, cov=cov, learned_from=history + (rec,)), rec
 
 

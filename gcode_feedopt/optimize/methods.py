@@ -117,13 +117,16 @@ def plan_conservative(path, profile, *, tolerance_mm, stringency, plant, vmax_mm
 
 
 def make_twin_predictor(profile, method: str, *, learn: bool):
-    """TwinPredictor of a profile for pb | dd | pidd: the physics and the weight prior from
-    the one constructor the twin itself uses (twin.physics.axis_impulse, twin.model.axis_prior)."""
-    from ..twin.model import axis_noise_mm, axis_prior
-    from ..twin.physics import axis_impulse
+    """TwinPredictor of a profile for pb | dd | pidd from what the twin itself is built of:
+    the physics (twin.model.twin_impulse: the profile's FRF population, narrowed to this
+    machine once ``learn`` has seen its logs), the weight prior (twin.model.axis_prior) and,
+    per axis, the level of what the twin cannot predict (twin.model.axis_noise_mm: what
+    ``learn`` measured on the machine's logs, the profile's σ_ε until then), which widens the
+    chance constraint by a disturbance the profile lacks (a fan)."""
+    from ..twin.model import axis_noise_mm, axis_prior, twin_impulse
 
     tw = profile.twin
-    irs = [axis_impulse(profile, ax) for ax in ("x", "y")]
+    irs = [twin_impulse(profile, ax, method=method) for ax in ("x", "y")]
     priors = [axis_prior(profile, ax, method=method) for ax in ("x", "y")]
     s2 = [axis_noise_mm(profile, ax, method=method) ** 2 for ax in ("x", "y")]
     return TwinPredictor(irs, tw.n2, tw.n3, s2, [p[0] for p in priors],

@@ -195,6 +195,9 @@ class AxisTwin:
         self.mu = theta[:d]
         self.cov = 0.5 * (C[:d, :d] + C[:d, :d].T)
         self.sigma2_learned = max(s2, lam)
+        #: which machine of the population the log showed: z's posterior (r,), (r, r)
+        self.z_mean = theta[d:].copy()
+        self.z_cov = 0.5 * (C[d:, d:] + C[d:, d:].T)
         return mean + ref, np.sqrt(np.maximum(var, 0.0))
 
 
@@ -281,6 +284,41 @@ def axis_noise_mm(profile, axis: str, *, method: str = "pidd") -> float:
     return profile.twin.sigma_eps_mm if level is None else max(level, NOISE_FLOOR_MIN_MM)
 
 
+def learned_draw(prior, r: int):
+    """Which machine of the profile's population ``learn`` found the logs to come from: (z
+    (r,), S (r, r)) with the plant draw z' = z + S u, u ~ N(0, I_r), in the directions of the
+    axis's known uncertainty (h = E h + L z'); None when nothing was learned (or the physics
+    changed its number of directions since). Kept in the last record of ``Prior.learned_from``
+    that has one (``plant_draw``)."""
+    if prior is None:
+        return None
+    for rec in reversed(tuple(prior.learned_from)):
+        got = rec.get("plant_draw") if isinstance(rec, dict) else None
+        if got is not None:
+            z = np.asarray(got["z"], float)
+            S = np.asarray(got["sqrt_cov"], float)
+            if z.shape != (r,) or S.shape != (r, r):
+                return None
+            return z, S
+    return None
+
+
+def twin_impulse(profile, axis: str, *, method: str = "pidd") -> ImpulseResponse:
+    """The Gaussian impulse response the twin of one axis uses: the profile's (the FRF
+    population, ``twin.physics.axis_impulse``) or, once ``learn`` has seen logs of this
+    machine, the population narrowed to it: mean E h + L z, factor L S (``learned_draw``).
+    The virtual machine keeps drawing plants from the population itself."""
+    ir = axis_impulse(profile, axis)
+    got = None if method == "dd" else learned_draw(profile.twin.priors.get(axis),
+                                                   ir.factor.shape[1])
+    if got is None:
+        return ir
+    z, S = got
+    L = ir.factor @ S
+    return ImpulseResponse(ts_s=ir.ts_s, mean=ir.mean + ir.factor @ z,
+                           var=np.einsum("ij,ij->i", L, L), factor=L)
+
+
 def axis_twin(profile, axis: str, *, method: str = "pidd") -> AxisTwin:
     """The twin of one axis of a profile.
 
@@ -288,6 +326,6 @@ def axis_twin(profile, axis: str, *, method: str = "pidd") -> AxisTwin:
     prior, no learning intended), ``dd`` (no known uncertainty, zero prior mean, broad prior)."""
     tw = profile.twin
     mu, cov = axis_prior(profile, axis, method=method)
-    return AxisTwin(ir=axis_impulse(profile, axis), n2=tw.n2, n3=tw.n3,
+    return AxisTwin(ir=twin_impulse(profile, axis, method=method), n2=tw.n2, n3=tw.n3,
                     sigma2=axis_noise_mm(profile, axis, method=method) ** 2, mu=mu, cov=cov,
                     use_feature_var=method != "dd")
