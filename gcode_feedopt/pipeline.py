@@ -9,6 +9,7 @@ import pathlib
 import time
 from dataclasses import dataclass
 
+import numpy as np
 
 from .errors import AlreadyProcessedError, FeedOptError, GCodeError
 from .gcode.path import build_path
@@ -51,8 +52,18 @@ def path_for(program, profile, fw_limits=None):
     when not given), so the plan's time is the firmware's."""
     if fw_limits is None:
         fw_limits = firmware.move_limits(program, profile)
-    return build_path(program, e_feed_cap_mm_s=fw_limits.e_feed_mm_s,
-                      e_accel_mm_s2=fw_limits.e_accel_mm_s2)
+    if profile.firmware.flavour != "klipper":
+        return build_path(program, e_feed_cap_mm_s=fw_limits.e_feed_mm_s,
+                          e_accel_mm_s2=fw_limits.e_accel_mm_s2)
+    # Klipper: E scaled by M221; minimum_cruise_ratio's pseudo-accel caps the peak of an
+    # E-only move at √(a_pseudo·|dE|) (vm.firmware: its look-ahead on a lone block)
+    de = np.abs(np.array([mv.de_mm for mv in program.moves], dtype=float))
+    d = de * fw_limits.extrude_factor
+    pseudo = np.minimum(fw_limits.e_accel_mm_s2,
+                        fw_limits.accel_mm_s2 * (1.0 - fw_limits.min_cruise_ratio))
+    cap = np.minimum(fw_limits.e_feed_mm_s, np.sqrt(pseudo * d))
+    return build_path(program, e_feed_cap_mm_s=cap, e_accel_mm_s2=fw_limits.e_accel_mm_s2,
+                      e_scale=fw_limits.extrude_factor)
 
 
 def plan(path, profile, opts: Options, fw_limits=None):

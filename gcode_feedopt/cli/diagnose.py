@@ -18,8 +18,8 @@ import click
 @click.option("--fit-fraction", type=click.FloatRange(0.1, 0.9), default=0.6, show_default=True,
               help="Fraction of the log (from its start) the extension is fitted on; the rest is held out.")
 @click.option("--output", "-o", "out_profile", type=click.Path(dir_okay=False),
-              help="Write the extended profile here (YAML): delay/gain/resonance_shift folded "
-                   "into the FRFs, every named effect recorded in provenance.closed_loop.")
+              help="Write the extended profile here (YAML): every named effect with its fitted "
+                   "parameters in axes.<axis>.effects (docs/diagnose.md).")
 @click.option("--raw-axis", type=click.Choice(["x", "y"]), default="x", show_default=True,
               help="For a Klipper raw recording: the profile axis it is compared with.")
 def diagnose(log_path, machine, json_path, plot_path, fit_fraction, out_profile, raw_axis):
@@ -30,14 +30,13 @@ def diagnose(log_path, machine, json_path, plot_path, fit_fraction, out_profile,
     gcode-feedopt diagnose --machine ender3pro part.csv --json d.json --plot d.png
     gcode-feedopt diagnose -m ender3pro part.csv -o extended.yaml   (then optimize -m extended.yaml)
     """
-    from ..closedloop.diagnose import diagnose_arrays, nominal_impulse
+    from ..closedloop.diagnose import diagnose_log
     from ..closedloop.logs import load_log
     from ..profile import load_profile
 
     profile = load_profile(machine)
     log = load_log(log_path, profile, raw_axis=raw_axis)
-    d = diagnose_arrays(log.cmd_mm, log.pos_mm, log.ts_s, nominal_impulse(profile),
-                        fit_fraction=fit_fraction)
+    d = diagnose_log(log, profile, fit_fraction=fit_fraction)
     out = d.to_dict()
     out["log"] = {"path": log.source, "kind": log.kind, "samples": int(log.cmd_mm.shape[0]),
                   "ts_s": log.ts_s, "warmup_samples": int(log.warmup), **log.info}
@@ -45,11 +44,20 @@ def diagnose(log_path, machine, json_path, plot_path, fit_fraction, out_profile,
     click.echo(f"residual RMS  x {rr['x'] * 1e3:.2f} µm   y {rr['y'] * 1e3:.2f} µm")
     for e in d.effects:
         params = ", ".join(f"{k}={v:.5g}" if isinstance(v, float) else f"{k}={v}"
-                           for k, v in e["params"].items())
+                           for k, v in e["params"].items() if k not in ("tie", "phase_rad"))
         click.echo(f"effect        {e['kind']} on {e['axis']} ({params}) "
                    f"confidence {e['confidence']:.2f}")
+        tie = e["params"].get("tie")
+        if tie:
+            tp = ", ".join(f"{k}={v:.5g}" for k, v in tie["params"].items() if isinstance(v, float))
+            click.echo(f"              tie: {tie['kind']} ({tp}) explains the held-out part as "
+                       "well; the two are not told apart by this log")
     for ax in ("x", "y"):
-        click.echo(f"held-out RMS  {ax}: {ho['before'][ax] * 1e3:.2f} -> {ho['after'][ax] * 1e3:.2f} µm")
+        line = (f"held-out RMS  {ax}: {ho['before'][ax] * 1e3:.2f} -> {ho['after'][ax] * 1e3:.2f} µm "
+                "(the extended profile)")
+        if "after_fitted" in ho and abs(ho["after_fitted"][ax] - ho["after"][ax]) > 1e-7:
+            line += f", {ho['after_fitted'][ax] * 1e3:.2f} µm with this log's fitted phase"
+        click.echo(line)
     if json_path:
         text = json.dumps(out, indent=2)
         if json_path == "-":

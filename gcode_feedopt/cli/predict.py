@@ -68,8 +68,10 @@ def read_log_columns(path: pathlib.Path, ts_s: float):
 def predict(log, machine, output, no_learn):
     """Predict the actual X/Y positions of LOG's commanded motion with the twin, learning online
     (one sample behind) from the measured columns x, y when the log has them. LOG may also be
-    a plan written by `optimize --trajectory` (t,x,y,z,e)."""
+    a plan written by `optimize --trajectory` (t,x,y,z,e). A profile's extensions written by
+    `diagnose -o` are part of the prediction (docs/diagnose.md)."""
     from ..closedloop.logs import edge_speeds_mm_s, log_warmup
+    from ..twin.extensions import extra_variance_mm2, mean_offsets
     from ..twin.model import axis_twin
 
     prof = load_profile(machine)
@@ -85,9 +87,12 @@ def predict(log, machine, output, no_learn):
                       f"out of the summary", LogWarning, stacklevel=1)
     out = [t]
     summary = []
-    for axis, cmd, meas in (("x", xc, xm), ("y", yc, ym)):
+    off = mean_offsets(prof, cmd_xy)
+    for i, (axis, cmd, meas) in enumerate((("x", xc, xm), ("y", yc, ym))):
         tw = axis_twin(prof, axis)
-        mean, std = tw.run(cmd, meas, learn=(meas is not None and not no_learn), warmup=w0)
+        mean, std = tw.run(cmd, meas, learn=(meas is not None and not no_learn), warmup=w0,
+                           offset_mm=off[:, i],
+                           extra_var_mm2=extra_variance_mm2(prof.axes[axis].effects))
         out += [mean, std]
         if meas is not None and w0 < len(t):
             r = meas[w0:] - mean[w0:]

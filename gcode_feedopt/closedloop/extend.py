@@ -1,18 +1,21 @@
-"""Write a diagnosis into a profile that ``optimize`` uses.
+"""Write a diagnosis into a profile that ``predict``, ``learn`` and ``optimize`` use.
 
-The twin (and so every optimizer method) sees an axis through its physics, built by
-``twin.physics`` from the axis's FRF set. The effects that are *linear* in the command are
-stored as the axis's extensions (``axes.<axis>.effects`` in the YAML) and applied to every
-fitted model of the axis, so every consumer of the profile uses the extended model at once:
+Every named effect is written with the parameters ``diagnose`` fitted (weights and signs as
+fitted: a friction lag of −0.3 µm is written as −0.3 µm, not as a unit effect) into the axis's
+extensions, ``axes.<axis>.effects`` in the YAML:
 
-- ``delay`` (delay_s): the response delay_s later;
-- ``gain`` (scale): the response times scale (in the twin's coordinates, deviations from the
-  first commanded sample; the constant (s−1)·x_0 offset moves the whole part and no contour);
-- ``resonance_shift`` (frequency_hz): the dominant mode moved there as a mass change moves it.
+- ``delay`` (seconds → ``delay_s``), ``gain`` (``scale``), ``resonance_shift``
+  (``frequency_hz``) change the axis's physics: ``twin.physics.apply_effects`` applies them to
+  every modal fit, so every consumer of the profile (twin, optimizer, virtual machine) uses the
+  extended response;
+- ``periodic_position``, ``backlash``, ``friction``, ``cross_coupling`` add a deterministic term
+  to the twin's mean prediction (``twin.extensions.mean_offsets``, used by ``predict`` and
+  ``learn``); the optimizer's predictor does not use these yet (stated in docs/diagnose.md);
+- ``periodic_time`` (a fan, no phase kept from print to print) adds A²/2 to the prediction's
+  variance.
 
-The other kinds (periodic_time/position, backlash, friction, cross_coupling) are not a
-commanded→actual linear response; they are recorded in ``provenance["closed_loop"]`` with their
-parameters but the optimizer's predictor does not use them yet (stated in docs/diagnose.md).
+``diagnose_log`` computes its held-out "after" RMS from the profile this module writes, so the
+two agree by construction; tests/closedloop/test_extend.py checks it through the YAML file.
 """
 
 from __future__ import annotations
@@ -22,37 +25,50 @@ import datetime
 
 import numpy as np
 
-LINEAR_KINDS = ("delay", "gain", "resonance_shift")
+from ..twin.extensions import LINEAR_KINDS, PARAMS
+
+#: diagnose's parameter names -> the profile's
+_RENAME = {"delay": {"seconds": "delay_s"}}
 
 
-def extend_profile(profile, effects: list[dict], *, source: str = "", mode_hz: dict | None = None):
-    """A copy of ``profile`` with the linear ``effects`` (diagnose's dicts) added to the axes'
-    extensions and every effect recorded in provenance. ``mode_hz`` is accepted for
-    compatibility and unused: a resonance shift moves the fitted dominant mode."""
+def profile_effect(effect: dict) -> dict:
+    """diagnose's effect dict -> the profile's ``{"kind", "params"}`` (fitted values kept)."""
+    kind = effect["kind"]
+    ren = _RENAME.get(kind, {})
+    params = {}
+    for k, v in effect["params"].items():
+        k = ren.get(k, k)
+        if k not in PARAMS[kind]:
+            continue
+        params[k] = v if isinstance(v, str) else float(v)
+    return {"kind": kind, "params": params}
+
+
+def extend_profile(profile, effects: list[dict], *, source: str = ""):
+    """A copy of ``profile`` with every named effect (diagnose's dicts) added to its axis's
+    extensions and recorded in provenance."""
     axes = dict(profile.axes)
-    applied, recorded = [], []
+    applied = []
     for e in effects:
-        kind, ax, p = e["kind"], e["axis"], e["params"]
+        kind, ax = e["kind"], e["axis"]
         if kind == "none":
             continue
-        if kind not in LINEAR_KINDS:
-            recorded.append(e)
-            continue
+        pe = profile_effect(e)
         am = axes[ax]
-        params = {k: float(v) for k, v in p.items()
-                  if k in ("delay_s", "scale", "frequency_hz")}
-        axes[ax] = dataclasses.replace(am, effects=tuple(am.effects) + ({"kind": kind, "params": params},))
-        applied.append(e)
+        axes[ax] = dataclasses.replace(am, effects=tuple(am.effects) + (pe,))
+        applied.append({"kind": kind, "axis": ax, "params": pe["params"],
+                        "changes": "physics" if kind in LINEAR_KINDS else
+                        ("variance" if kind == "periodic_time" else "mean")})
     prov = dict(profile.provenance)
     hist = list(prov.get("closed_loop", []))
     hist.append({"diagnosed_from": source,
                  "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-                 "applied_to_the_model": _plain(applied), "recorded_not_modelled": _plain(recorded)})
+                 "applied_to_the_model": _plain(applied)})
     prov["closed_loop"] = hist
     return dataclasses.replace(profile, axes=axes, provenance=prov)
 
 
 def _plain(effects):
-    return [{"kind": e["kind"], "axis": e["axis"],
+    return [{"kind": e["kind"], "axis": e["axis"], "changes": e["changes"],
              "params": {k: (float(v) if isinstance(v, (float, np.floating)) else v)
                         for k, v in e["params"].items()}} for e in effects]

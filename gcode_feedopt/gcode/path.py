@@ -149,7 +149,8 @@ class Path:
         return np.einsum("ij,ij->i", t_end[:-1], t_beg[1:])
 
 
-def build_path(program: Program, *, e_feed_cap_mm_s=25.0, e_accel_mm_s2=5000.0) -> Path:
+def build_path(program: Program, *, e_feed_cap_mm_s=25.0, e_accel_mm_s2=5000.0,
+               e_scale=1.0) -> Path:
     """Turn a Program into a Path.
 
     Args:
@@ -159,9 +160,12 @@ def build_path(program: Program, *, e_feed_cap_mm_s=25.0, e_accel_mm_s2=5000.0) 
             and this.
         e_accel_mm_s2: the acceleration of E-only moves, one or (M,) per move
             (MoveLimits.e_accel_mm_s2), used for their duration.
+        e_scale: one or (M,) factor on the E of E-only moves for their duration (Klipper's
+            M221 scales E; MoveLimits.extrude_factor).
     """
     e_caps = np.broadcast_to(np.asarray(e_feed_cap_mm_s, float), (len(program.moves),))
     e_accs = np.broadcast_to(np.asarray(e_accel_mm_s2, float), (len(program.moves),))
+    e_scales = np.broadcast_to(np.asarray(e_scale, float), (len(program.moves),))
     moves = program.moves
     seg_moves = []
     dwell_after: dict[int, float] = {}
@@ -180,7 +184,7 @@ def build_path(program: Program, *, e_feed_cap_mm_s=25.0, e_accel_mm_s2=5000.0) 
     def e_move_time(de: float, feed: float, mi: int) -> float:
         cap, acc = float(e_caps[mi]), float(e_accs[mi])
         v = min(feed, cap) if feed > 0 else cap
-        d = abs(de)
+        d = abs(de) * float(e_scales[mi])
         # trapezoid from rest to rest
         if d * acc >= v * v:
             return d / v + v / acc

@@ -13,9 +13,13 @@ Limits, per segment:
   executed. Tangential and centripetal parts then add up to at most √2·A on an axis, as on the
   chords of any polyline curve; the twin judges the resulting contour error.
 - junctions: the firmware's own junction rule (Marlin's junction deviation, or Klipper's
-  square-corner velocity mapped to a junction deviation plus its centripetal limit), so a plan
-  never asks for a corner speed the firmware would refuse — the written G-code then runs as
-  planned. Full reversals, E-only moves, dwells, waits and tool changes are exact stops.
+  rules: square-corner velocity per neighbour, its centripetal limit and the extruder's corner
+  velocity), so a plan never asks for a corner speed the firmware would refuse — the written
+  G-code then runs as planned. Full reversals, E-only moves, dwells, waits and tool changes are
+  exact stops.
+- Klipper: also its look-ahead with minimum_cruise_ratio (plan.trapezoid.klipper_lookahead)
+  and its extrude-only limits on retracting moves: the plan is Klipper's own plan
+  (docs/firmware.md).
 """
 
 from __future__ import annotations
@@ -27,7 +31,8 @@ import numpy as np
 
 from ..gcode.path import SEG_LINE, Path
 from .schedule import Schedule
-from .trapezoid import Trapezoids, forward_backward, junction_limits, sample, trapezoids
+from .trapezoid import (Trapezoids, forward_backward, junction_limits, klipper_junction_v2,
+                        klipper_lookahead, sample, trapezoids)
 
 
 def _axis_caps(path: Path, axis_limit: dict, scalar_cap: float | None) -> np.ndarray:
@@ -116,6 +121,9 @@ class PlannerLimits:
     accel_mm_s2: np.ndarray
     junction_mm_s: np.ndarray
     jerk_junction: np.ndarray | None = None
+    #: Klipper: (N,) minimum_cruise_ratio's pseudo-accel of each segment (its look-ahead gives
+    #: a run of short moves one reduced peak, plan.trapezoid.klipper_lookahead); None: Marlin
+    pseudo_accel_mm_s2: np.ndarray | None = None
 
 
 def planner_limits(path: Path, *, vmax_mm_s: float, axis_vmax_mm_s: dict,
@@ -138,28 +146,78 @@ def planner_limits(path: Path, *, vmax_mm_s: float, axis_vmax_mm_s: dict,
         vcap[arc] = np.minimum(vcap[arc], np.sqrt(a_xy * path.radius_mm[arc]))
     # numbered (fixed) lines keep the slicer's speed: they are written back unchanged
     vcap = np.where(path.fixed, np.minimum(vcap, path.feed_mm_s), vcap)
-    centripetal = firmware.flavour == "klipper"
+    if firmware.flavour == "klipper":
+        return _klipper_limits(path, vcap, acc, axis_amax_mm_s2, firmware, fw_limits)
     jerk_v = None
     if fw_limits is not None:
         f_acc, f_vcap, jd, jerk_v = _firmware_caps(path, fw_limits)
         acc = np.minimum(acc, f_acc)
         vcap = np.minimum(vcap, f_vcap)
-        if centripetal:
-            scv = firmware.square_corner_velocity_mm_s
-            jd = scv * scv * (math.sqrt(2.0) - 1.0) / acc
     else:
         a_ref = float(np.median(acc)) if n else 1.0
         jd = np.full(n, deviation_for(firmware, a_ref)[0])
     vj = np.zeros(n + 1)
     if n:
-        vj[1:n] = junction_limits(path.junction_cos(), acc, jd[1:],
-                                  path.length_mm if centripetal else None, jerk_v, vcap,
-                                  path.stop_after, None if centripetal else path.length_mm)
+        vj[1:n] = junction_limits(path.junction_cos(), acc, jd[1:], None, jerk_v, vcap,
+                                  path.stop_after, path.length_mm)
     jerk_j = None
     if jerk_v is not None and n:
         jerk_j = np.zeros(n + 1, bool)
         jerk_j[1:n] = np.isfinite(jerk_v)
     return PlannerLimits(vcap_mm_s=vcap, accel_mm_s2=acc, junction_mm_s=vj, jerk_junction=jerk_j)
+
+
+def _klipper_limits(path: Path, vcap: np.ndarray, acc: np.ndarray, axis_amax_mm_s2: dict,
+                    firmware, fw_limits) -> PlannerLimits:
+    """:class:`PlannerLimits` under Klipper's rules (vm.firmware's Klipper model), given the
+    plan's own caps ``vcap`` and ``acc``.
+
+    Klipper's one accel is what the writer leaves in force: the file's (M204 S, M204 P T,
+    SET_VELOCITY_LIMIT ACCEL), clamped to the plan's X/Y limit (vm.firmware.accel_clamp);
+    its junction deviation comes from that accel and square_corner_velocity, and each side of
+    a junction gets δ·a with its own segment's accel (so moves slowed by Z get slower
+    corners). A segment that retracts, or extrudes without moving X/Y, stays within the
+    extrude-only limits scaled by L/|dE|; where the extruder's share dE/L changes, the
+    junction stays within instantaneous_corner_velocity / |Δ(dE/L)|; minimum_cruise_ratio
+    gives the plan its pseudo-accel (plan.trapezoid.klipper_lookahead)."""
+    n = path.n_segments
+    L = path.length_mm
+    a_xy = min(axis_amax_mm_s2["x"], axis_amax_mm_s2["y"])
+    if fw_limits is not None:
+        mi = path.move_index
+        f_acc, f_vcap, jd_file, _ = _firmware_caps(path, fw_limits)
+        acc = np.minimum(acc, f_acc)
+        vcap = np.minimum(vcap, f_vcap)
+        file_a = fw_limits.accel_mm_s2[mi]
+        toolhead = np.minimum(file_a, a_xy)
+        jd = jd_file * file_a / toolhead
+        mcr = fw_limits.min_cruise_ratio[mi]
+        ef = fw_limits.extrude_factor[mi]
+        e_feed, e_acc = fw_limits.e_feed_mm_s[mi], fw_limits.e_accel_mm_s2[mi]
+    else:
+        toolhead = np.full(n, min(firmware.accel_mm_s2, a_xy))
+        scv = firmware.square_corner_velocity_mm_s
+        jd = scv * scv * (math.sqrt(2.0) - 1.0) / toolhead
+        mcr = np.full(n, firmware.minimum_cruise_ratio)
+        ef = np.ones(n)
+        e_feed = np.full(n, firmware.max_feed_mm_s["e"])
+        e_acc = np.full(n, firmware.max_accel_mm_s2["e"])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        e_ratio = np.where(L > 0, path.de_mm * ef / np.where(L > 0, L, 1.0), 0.0)
+        no_xy = ((path.end_mm[:, 0] == path.start_mm[:, 0])
+                 & (path.end_mm[:, 1] == path.start_mm[:, 1]) & (path.kind == SEG_LINE))
+        e_lim = (e_ratio != 0.0) & (no_xy | (e_ratio < 0.0))
+        inv = 1.0 / np.abs(e_ratio)
+        vcap = np.where(e_lim, np.minimum(vcap, e_feed * inv), vcap)
+        acc = np.where(e_lim, np.minimum(acc, e_acc * inv), acc)
+    vj = np.zeros(n + 1)
+    if n:
+        vj[1:n] = np.sqrt(klipper_junction_v2(path.junction_cos(), acc, jd, L, vcap,
+                                              path.stop_after, e_ratio,
+                                              firmware.instantaneous_corner_velocity_mm_s))
+    pseudo = np.minimum(acc, toolhead * (1.0 - mcr))
+    return PlannerLimits(vcap_mm_s=vcap, accel_mm_s2=acc, junction_mm_s=vj,
+                         pseudo_accel_mm_s2=pseudo)
 
 
 def plan_trapezoids(path: Path, *, vmax_mm_s: float, axis_vmax_mm_s: dict,
@@ -171,9 +229,14 @@ def plan_trapezoids(path: Path, *, vmax_mm_s: float, axis_vmax_mm_s: dict,
                          axis_amax_mm_s2=axis_amax_mm_s2, firmware=firmware,
                          use_slicer_feed=use_slicer_feed, feed_scale=feed_scale,
                          fw_limits=fw_limits)
-    vj = forward_backward(lim.junction_mm_s, path.length_mm, lim.accel_mm_s2)
-    tr = trapezoids(vj, path.length_mm, lim.accel_mm_s2, lim.vcap_mm_s, path.dwell_after_s,
-                    path.dwell_before_s)
+    if lim.pseudo_accel_mm_s2 is not None:
+        tr = klipper_lookahead(np.square(lim.junction_mm_s), path.length_mm, lim.accel_mm_s2,
+                               lim.pseudo_accel_mm_s2, lim.vcap_mm_s, path.dwell_after_s,
+                               path.dwell_before_s)
+    else:
+        vj = forward_backward(lim.junction_mm_s, path.length_mm, lim.accel_mm_s2)
+        tr = trapezoids(vj, path.length_mm, lim.accel_mm_s2, lim.vcap_mm_s, path.dwell_after_s,
+                        path.dwell_before_s)
     return (tr, lim) if with_limits else tr
 
 

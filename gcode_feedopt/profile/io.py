@@ -17,6 +17,7 @@ import yaml
 
 from ..errors import ProfileError
 from .frf_io import FRF_HEADER, frf_set_from_files, read_frf_csv, write_frf_csv  # noqa: F401
+from ..twin.extensions import PARAMS as EXT_PARAMS, REQUIRED as EXT_REQUIRED
 from .schema import AXES, AxisModel, Firmware, FRFSet, Limits, MachineProfile, Mode, Prior, TwinSettings
 
 SCHEMA_VERSION = 1
@@ -154,14 +155,16 @@ def _read_axis(sec: _Section, base_dir: pathlib.Path | None) -> AxisModel:
     effects = []
     for k, e in enumerate(sec.raw("effects", [])):
         es = _Section(e, f"{sec._key('effects')}[{k}]", sec.origin)
-        kind = es.getchoice("kind", ("delay", "gain", "resonance_shift"))
+        kind = es.getchoice("kind", tuple(EXT_PARAMS))
         ps = es.section("params")
-        if kind == "delay":
-            params = {"delay_s": ps.getfloat("delay_s", minval=-0.1, maxval=0.1)}
-        elif kind == "gain":
-            params = {"scale": ps.getfloat("scale", above=0.5, below=2.0)}
-        else:
-            params = {"frequency_hz": ps.getfloat("frequency_hz", above=0, maxval=1e4)}
+        params = {}
+        for name, spec in EXT_PARAMS[kind].items():
+            if name not in ps.data and name not in EXT_REQUIRED[kind]:
+                continue
+            if isinstance(spec[0], str):
+                params[name] = ps.getchoice(name, spec)
+            else:
+                params[name] = ps.getfloat(name, minval=spec[0], maxval=spec[1])
         ps.check_unknown()
         es.check_unknown()
         effects.append({"kind": kind, "params": params})
@@ -221,6 +224,8 @@ def parse_profile(data, origin: str, base_dir: pathlib.Path | None) -> MachinePr
         max_lines_per_s=fs.getfloat("max_lines_per_s", above=1, maxval=1e6),
         retract_mm=fs.getfloat("retract_mm", 0.0, minval=0, maxval=50),
         retract_speed_mm_s=fs.getfloat("retract_speed_mm_s", 30.0, above=0, maxval=1000),
+        instantaneous_corner_velocity_mm_s=fs.getfloat("instantaneous_corner_velocity_mm_s",
+                                                       1.0, minval=0, maxval=1000),
     )
     fs.check_unknown()
     axs = top.section("axes")
@@ -321,6 +326,8 @@ def profile_to_dict(profile: MachineProfile, frf_paths: dict | None = None) -> d
                  "physics": T.physics, "dc_gain": T.dc_gain},
         "provenance": profile.provenance,
     }
+    if F.flavour == "klipper":
+        d["firmware"]["instantaneous_corner_velocity_mm_s"] = F.instantaneous_corner_velocity_mm_s
     if T.priors:
         d["twin"]["priors"] = {a: _prior_to_yaml(p) for a, p in T.priors.items()}
     for a, ax in profile.axes.items():
@@ -331,8 +338,9 @@ def profile_to_dict(profile: MachineProfile, frf_paths: dict | None = None) -> d
             ad["modes"] = [{"freq_hz": m.freq_hz, "damping": m.damping, "gain": m.gain}
                            for m in ax.modes]
         if ax.effects:
-            ad["effects"] = [{"kind": e["kind"], "params": {k: float(v) for k, v in e["params"].items()}}
-                             for e in ax.effects]
+            ad["effects"] = [{"kind": e["kind"], "params": {
+                k: (v if isinstance(v, str) else float(v)) for k, v in e["params"].items()}}
+                for e in ax.effects]
         if ax.provenance:
             ad["provenance"] = ax.provenance
         d["axes"][a] = ad

@@ -52,6 +52,8 @@ class Firmware:
         max_lines_per_s: how many motion lines per second the firmware can take (planner
             buffer / serial bandwidth); the writer never emits more.
         retract_mm, retract_speed_mm_s: firmware retraction (G10/G11).
+        instantaneous_corner_velocity_mm_s: Klipper's extruder instantaneous_corner_velocity:
+            at a junction the extruder's speed changes by at most this (Klipper's default 1).
     """
 
     flavour: str
@@ -67,6 +69,7 @@ class Firmware:
     max_lines_per_s: float
     retract_mm: float
     retract_speed_mm_s: float
+    instantaneous_corner_velocity_mm_s: float = 1.0
 
 
 @dataclass(frozen=True)

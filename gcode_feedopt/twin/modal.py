@@ -118,6 +118,17 @@ class ModalModel:
         b1[index] *= ratio * ratio
         return ModalModel(f, z, b1, self.b0.copy(), self.lag_s, self.dc_gain, self.delay_s)
 
+    def rescaled(self, ratio: float) -> "ModalModel":
+        """The whole response with its frequency axis stretched, H'(s) = H(s/ratio): every
+        mode ω → ratio·ω with its ζ, b1 → ratio·b1, the lag and delay / ratio."""
+        return ModalModel(self.freq_hz * ratio, self.damping.copy(), self.b1_rad_s * ratio,
+                          self.b0.copy(), self.lag_s / ratio, self.dc_gain, self.delay_s / ratio)
+
+    def peak_hz(self, nyquist_hz: float) -> float:
+        """Frequency of the largest |H| above 1 Hz (the dominant mode as a spectrum shows it)."""
+        f = np.linspace(1.0, nyquist_hz, 4096)
+        return float(f[np.argmax(np.abs(self.response(f)))])
+
     @property
     def dominant(self) -> int:
         """Index of the mode with the largest resonant peak of its own term."""

@@ -42,7 +42,20 @@ class AxisTwin:
     curvature: str = "moment"
 
     def run(self, x_cmd: np.ndarray, x_meas: np.ndarray | None = None, *, learn: bool = True,
-            sigma_eps_mm: float | None = None, warmup: int = 0):
+            sigma_eps_mm: float | None = None, offset_mm: np.ndarray | None = None,
+            extra_var_mm2: float = 0.0, warmup: int = 0):
+        """``_run`` with a profile's extensions (``twin.extensions``): the known deterministic
+        term ``offset_mm`` (T,) is taken off the measurements and added to the prediction, the
+        variance ``extra_var_mm2`` (a fan of unknown phase) added to its variance."""
+        if offset_mm is None and not extra_var_mm2:
+            return self._run(x_cmd, x_meas, learn=learn, sigma_eps_mm=sigma_eps_mm, warmup=warmup)
+        off = np.zeros(np.size(x_cmd)) if offset_mm is None else np.asarray(offset_mm, float)
+        meas = None if x_meas is None else np.asarray(x_meas, float) - off
+        mean, std = self._run(x_cmd, meas, learn=learn, sigma_eps_mm=sigma_eps_mm, warmup=warmup)
+        return mean + off, np.sqrt(std * std + float(extra_var_mm2))
+
+    def _run(self, x_cmd: np.ndarray, x_meas: np.ndarray | None = None, *, learn: bool = True,
+             sigma_eps_mm: float | None = None, warmup: int = 0):
         """Predict (and learn) over a trajectory.
 
         Args:

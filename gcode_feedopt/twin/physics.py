@@ -57,7 +57,7 @@ def axis_modal(profile, axis: str, *, warn: bool = True) -> AxisModal:
                            nyquist_hz=0.5 / profile.ts_s)
         except ValueError as exc:
             raise ProfileError(f"profile {profile.name}, axis {axis}: {exc}") from None
-        got = apply_effects(got, ax.effects)
+        got = apply_effects(got, ax.effects, profile.ts_s)
         _CACHE[k] = got
         if warn:
             for w in got.warnings:
@@ -84,14 +84,16 @@ def axis_impulse(profile, axis: str) -> _frf.ImpulseResponse:
     return _frf.impulse_response(freq, resp, profile.ts_s, n_taps, method=tw.coef_variance)
 
 
-def apply_effects(fits: AxisModal, effects) -> AxisModal:
+def apply_effects(fits: AxisModal, effects, ts_s: float | None = None) -> AxisModal:
     """The fits with a diagnosis's linear extensions applied to every member (a delay, a gain
-    about the origin, the dominant mode moved as a mass change moves it)."""
+    about the origin, the dominant mode moved as a mass change moves it, or with form
+    ``scale`` the whole response rescaled so the peak of |H| (up to 0.5/ts_s) lands there)."""
     if not effects:
         return fits
     new = []
     dom = fits.mean_model().dominant
     f_dom = float(fits.mean_model().freq_hz[dom])
+    f_peak = fits.mean_model().peak_hz(0.5 / ts_s) if ts_s else f_dom
     for ft in fits.fits:
         m = ft.model
         for e in effects:
@@ -100,6 +102,8 @@ def apply_effects(fits: AxisModal, effects) -> AxisModal:
                 m = m.delayed(p["delay_s"])
             elif e["kind"] == "gain":
                 m = m.scaled(p["scale"])
+            elif e["kind"] == "resonance_shift" and p.get("form") == "scale":
+                m = m.rescaled(p["frequency_hz"] / f_peak)
             elif e["kind"] == "resonance_shift":
                 m = m.mode_shifted(dom, p["frequency_hz"] / f_dom)
         new.append(dataclasses.replace(ft, model=m))
@@ -118,7 +122,9 @@ def _bins(profile, axis: str):
         elif e["kind"] == "gain":
             resp = resp * p["scale"]
         elif e["kind"] == "resonance_shift":
-            f0 = float(mean_model(profile, axis).freq_hz[mean_model(profile, axis).dominant])
+            mm = mean_model(profile, axis)
+            f0 = (mm.peak_hz(0.5 / profile.ts_s) if p.get("form") == "scale"
+                  else float(mm.freq_hz[mm.dominant]))
             resp = _shift_rows(freq, resp, p["frequency_hz"] / f0)
     return freq, resp
 

@@ -9,11 +9,14 @@ the firmware's. Two models, chosen by the profile's ``firmware.flavour``:
   G2/G3 split into chords of ``mm_per_arc_segment`` like Marlin's plan_arc. When the file sets
   classic jerk (M205 X/Y without J, as PrusaSlicer and Cura write for jerk-configured Marlin),
   the junction speed is the highest at which no axis changes speed by more than its jerk.
-- **Klipper**: look-ahead with square_corner_velocity (mapped to a junction deviation,
-  δ = scv²(√2 − 1)/a) and its centripetal limit ½·L·a·tan(θ/2) on both neighbours;
-  minimum_cruise_ratio (or max_accel_to_decel) caps the peak speed of short moves;
-  SET_VELOCITY_LIMIT (VELOCITY, ACCEL, ACCEL_TO_DECEL, SQUARE_CORNER_VELOCITY,
-  MINIMUM_CRUISE_RATIO) and M204 S/P/T honoured in file order.
+- **Klipper**: klippy's rules (commit 84104bb; docs/firmware.md): one accel (M204 S, or the
+  smaller of M204 P and T; P or T alone, M204 R, M201, M203 and M205 change nothing),
+  SET_VELOCITY_LIMIT (VELOCITY, ACCEL, SQUARE_CORNER_VELOCITY, MINIMUM_CRUISE_RATIO), M220 /
+  M221; Z and extrude-only limits scaled by the move; junctions at each neighbour's own
+  δ·a (δ = scv²(√2 − 1)/accel) and ½·L·a·tan(θ/2), and the extruder's
+  instantaneous_corner_velocity; minimum_cruise_ratio's pseudo-accel look-ahead gives a run of
+  short moves one reduced peak (plan.trapezoid.klipper_lookahead). Real Klipper times the
+  same files to within 1 µs (tests/vm/test_klipper_referee.py).
 
 Both: exact stops at E-only moves, dwells (G4), waits (M400, M109, ...), homing and tool
 changes; firmware retraction (G10/G11) takes retract_mm/retract_speed. Settings found in the
@@ -27,7 +30,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..plan.trapezoid import forward_backward, junction_limits, peak_speed, sample, trapezoids
+from ..plan.trapezoid import (forward_backward, junction_limits, klipper_junction_v2,
+                              klipper_lookahead, sample, trapezoids)
 from .trajectory import Trajectory
 
 #: Marlin's minimum planner speed (MINIMUM_PLANNER_SPEED), mm/s: junctions never go below it
@@ -48,6 +52,9 @@ class _Limits:
     velocity: float
     #: classic jerk per axis (M205 X Y Z E) when the file asks for it; None = junction deviation
     jerk: dict | None = None
+    #: Klipper's M220 and M221 factors (speed and extrusion; Marlin model: always 1)
+    speed_factor: float = 1.0
+    extrude_factor: float = 1.0
 
 
 def _norm3(d) -> float:
@@ -69,6 +76,9 @@ def _initial(profile) -> _Limits:
 
 
 def _apply_event(lim: _Limits, ev, klipper: bool) -> None:
+    if klipper:
+        _apply_event_klipper(lim, ev)
+        return
     p = ev.params
     n = ev.name
     if n == "M204":
@@ -80,10 +90,6 @@ def _apply_event(lim: _Limits, ev, klipper: bool) -> None:
             lim.accel_travel = float(p["T"])
         if "R" in p:
             lim.accel_retract = float(p["R"])
-        if klipper:  # Klipper: M204 sets the one accel (S, or min of P and T)
-            a = float(p["S"]) if "S" in p else min(float(p.get("P", math.inf)), float(p.get("T", math.inf)))
-            if math.isfinite(a):
-                lim.accel_print = lim.accel_travel = a
     elif n == "M201":
         for L in "XYZE":
             if L in p:
@@ -96,7 +102,7 @@ def _apply_event(lim: _Limits, ev, klipper: bool) -> None:
         if "J" in p:
             lim.jd = float(p["J"])
             lim.jerk = None
-        elif any(L in p for L in "XY") and not klipper:
+        elif any(L in p for L in "XY"):
             # the slicer configured classic jerk (Prusa, many Creality builds): model it
             j = dict(lim.jerk or {"x": 10.0, "y": 10.0, "z": 0.3, "e": 5.0})
             for L in "XYZE":
@@ -104,6 +110,7 @@ def _apply_event(lim: _Limits, ev, klipper: bool) -> None:
                     j[L.lower()] = float(p[L])
             lim.jerk = j
     elif n == "SET_VELOCITY_LIMIT":
+        # not a Marlin command; kept from the first model (docs/firmware.md: not followed)
         if isinstance(p.get("VELOCITY"), float):
             lim.velocity = p["VELOCITY"]
         if isinstance(p.get("ACCEL"), float):
@@ -116,13 +123,64 @@ def _apply_event(lim: _Limits, ev, klipper: bool) -> None:
             lim.min_cruise_ratio = max(0.0, 1.0 - p["ACCEL_TO_DECEL"] / lim.accel_print)
 
 
+def _positive(p: dict, key: str) -> float | None:
+    v = p.get(key)
+    return float(v) if isinstance(v, float) and v > 0 else None
+
+
+def _klipper_accel_set(ev) -> float | None:
+    """The accel a line sets in Klipper (``M204 S``, the smaller of ``M204 P T``,
+    ``SET_VELOCITY_LIMIT ACCEL``), or None: it sets none (or Klipper refuses it)."""
+    p = ev.params
+    if ev.name == "M204":
+        a = _positive(p, "S")
+        if a is None:
+            pa, ta = _positive(p, "P"), _positive(p, "T")
+            a = None if pa is None or ta is None else min(pa, ta)
+        return a
+    if ev.name == "SET_VELOCITY_LIMIT":
+        return _positive(p, "ACCEL")
+    return None
+
+
+def _apply_event_klipper(lim: _Limits, ev) -> None:
+    """Klipper's commands that change the motion (klippy toolhead.py and gcode_move.py):
+    ``M204 S`` sets the one acceleration, or ``M204 P.. T..`` the smaller of the two (P or T
+    alone is refused: nothing changes); SET_VELOCITY_LIMIT VELOCITY / ACCEL /
+    SQUARE_CORNER_VELOCITY / MINIMUM_CRUISE_RATIO; M220 / M221 the speed and extrusion
+    factors. M201, M203, M205 and M204 R are not Klipper commands: ignored. Both accels of
+    ``_Limits`` hold the one accel."""
+    p = ev.params
+    n = ev.name
+    a = _klipper_accel_set(ev)
+    if a is not None:
+        lim.accel_print = lim.accel_travel = a
+    if n == "SET_VELOCITY_LIMIT":
+        if _positive(p, "VELOCITY") is not None:
+            lim.velocity = p["VELOCITY"]
+        v = p.get("SQUARE_CORNER_VELOCITY")
+        if isinstance(v, float) and v >= 0:
+            lim.scv = v
+        v = p.get("MINIMUM_CRUISE_RATIO")
+        if isinstance(v, float) and 0 <= v < 1:
+            lim.min_cruise_ratio = v
+    elif n in ("M220", "M221") and ("S" not in p or _positive(p, "S") is not None):
+        f = p.get("S", 100.0) / 100.0
+        if n == "M220":
+            lim.speed_factor = f
+        else:
+            lim.extrude_factor = f
+
+
 @dataclass(frozen=True)
 class Blocks:
     """The firmware's planner blocks (N): straight pieces in XYZ+E.
 
     start_mm (N,3), end_mm (N,3), e0_mm (N,), de_mm (N,), length_mm (N,) (XYZ length, or |ΔE|
-    for E-only blocks), accel (N,), peak_accel (N,), vcap (N,), stop_after (N,), dwell_after_s
-    (N,), lead_s; plus ``jd`` and ``centripetal`` of the junction rule per junction."""
+    for E-only blocks; Klipper: |ΔE| × M221), accel (N,), peak_accel (N,) (Klipper: the
+    pseudo-accel of minimum_cruise_ratio; Marlin: accel), vcap (N,), stop_after (N,),
+    dwell_after_s (N,), lead_s; ``jd`` (N,) the junction deviation of each block (Klipper: from
+    square_corner_velocity and the toolhead's accel), ``turn_cos`` (N-1,) per junction."""
 
     start_mm: np.ndarray
     end_mm: np.ndarray
@@ -140,6 +198,10 @@ class Blocks:
     klipper: bool
     #: (N-1,) classic-jerk junction limit (inf where junction deviation applies)
     jerk_v: np.ndarray | None = None
+    #: Klipper: (N,) the extruder's share of each block, dE/L (dE × M221), whose change at a
+    #: junction is held to ``icv_mm_s`` (instantaneous_corner_velocity); None for Marlin
+    e_ratio: np.ndarray | None = None
+    icv_mm_s: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -147,12 +209,13 @@ class MoveLimits:
     """The firmware's limits in force at every move of a program (M moves).
 
     accel_mm_s2: (M,) M204 P (extruding) or T (travel) — Klipper: its one accel;
-    max_accel_mm_s2, max_feed_mm_s: (M, 3) M201 / M203 for X, Y, Z;
-    jd_mm: (M,) junction deviation (Klipper: from square_corner_velocity);
+    max_accel_mm_s2, max_feed_mm_s: (M, 3) M201 / M203 for X, Y, Z (Klipper: the profile's,
+    which the file cannot change; Z: max_z_accel / max_z_velocity);
+    jd_mm: (M,) junction deviation (Klipper: from square_corner_velocity and its one accel);
     jerk_mm_s: (M, 3) classic jerk, NaN where junction deviation applies;
     velocity_mm_s: (M,) Klipper's max velocity (inf for Marlin);
     e_accel_mm_s2, e_feed_mm_s: (M,) what an E-only move (retraction, prime) runs at: M204 R
-    within M201 E, and M203 E (its own F capped there)."""
+    within M201 E, and M203 E (its own F capped there); Klipper: the extrude-only limits."""
 
     accel_mm_s2: np.ndarray
     max_accel_mm_s2: np.ndarray
@@ -162,6 +225,9 @@ class MoveLimits:
     velocity_mm_s: np.ndarray
     e_accel_mm_s2: np.ndarray
     e_feed_mm_s: np.ndarray
+    #: Klipper: (M,) minimum_cruise_ratio and the M221 extrusion factor (Marlin: 0 and 1)
+    min_cruise_ratio: np.ndarray | None = None
+    extrude_factor: np.ndarray | None = None
 
 
 def move_limits(program, profile, fast: bool = True) -> MoveLimits:
@@ -189,9 +255,17 @@ def move_limits(program, profile, fast: bool = True) -> MoveLimits:
         vel = np.full(len(moves), np.inf)
     jerk = np.array([[np.nan] * 3 if q.jerk is None else [q.jerk[k] for k in "xyz"]
                      for q in snaps]).reshape(-1, 3)[si]
-    e_acc = np.array([min(q.accel_retract, q.max_accel["e"]) for q in snaps])[si]
+    e_acc = np.array([_e_only_accel(q, klipper) for q in snaps])[si]
     e_feed = np.array([q.max_feed["e"] for q in snaps], dtype=float)[si]
-    return MoveLimits(acc, macc, mfeed, jd, jerk, vel, e_acc, e_feed)
+    mcr = np.array([q.min_cruise_ratio if klipper else 0.0 for q in snaps])[si]
+    ef = np.array([q.extrude_factor for q in snaps])[si]
+    return MoveLimits(acc, macc, mfeed, jd, jerk, vel, e_acc, e_feed, mcr, ef)
+
+
+def _e_only_accel(lim: _Limits, klipper: bool) -> float:
+    """An E-only move's accel: Klipper's max_extrude_only_accel; Marlin's M204 R within
+    M201 E."""
+    return lim.max_accel["e"] if klipper else min(lim.accel_retract, lim.max_accel["e"])
 
 
 @dataclass(frozen=True)
@@ -251,8 +325,7 @@ def accel_clamp(program, profile, axis_amax_mm_s2: dict) -> AccelClamp | None:
     if klipper:
         file = np.array([[q.accel_print] for q in snaps], dtype=float).reshape(-1, 1)
         cap = np.array([min(axis_amax_mm_s2["x"], axis_amax_mm_s2["y"])])
-        sets = [ev.name == "SET_VELOCITY_LIMIT" and "ACCEL" in ev.params
-                or ev.name == "M204" for ev in program.events]
+        sets = [_klipper_accel_set(ev) is not None for ev in program.events]
     else:
         file = np.array([[q.max_accel[k] for k in "xyz"] for q in snaps],
                         dtype=float).reshape(-1, 3)
@@ -284,7 +357,8 @@ def _limit_snapshots(program, profile, klipper: bool):
 def _snapshot(lim: _Limits) -> _Limits:
     return _Limits(lim.accel_print, lim.accel_travel, lim.accel_retract, dict(lim.max_accel),
                    dict(lim.max_feed), lim.jd, lim.scv, lim.min_cruise_ratio, lim.velocity,
-                   None if lim.jerk is None else dict(lim.jerk))
+                   None if lim.jerk is None else dict(lim.jerk), lim.speed_factor,
+                   lim.extrude_factor)
 
 
 def _move_limits_reference(program, profile) -> MoveLimits:
@@ -302,6 +376,8 @@ def _move_limits_reference(program, profile) -> MoveLimits:
     vel = np.full(m, np.inf)
     e_acc = np.empty(m)
     e_feed = np.empty(m)
+    mcr = np.empty(m)
+    ef = np.empty(m)
     for mi, mv in enumerate(program.moves):
         while ei < len(events) and events[ei].move_index <= mi:
             _apply_event(lim, events[ei], klipper)
@@ -315,9 +391,52 @@ def _move_limits_reference(program, profile) -> MoveLimits:
             jerk[mi] = [lim.jerk[k] for k in "xyz"]
         if klipper:
             vel[mi] = lim.velocity
-        e_acc[mi] = min(lim.accel_retract, lim.max_accel["e"])
+        e_acc[mi] = _e_only_accel(lim, klipper)
         e_feed[mi] = lim.max_feed["e"]
-    return MoveLimits(acc, macc, mfeed, jd, jerk, vel, e_acc, e_feed)
+        mcr[mi] = lim.min_cruise_ratio if klipper else 0.0
+        ef[mi] = lim.extrude_factor
+    return MoveLimits(acc, macc, mfeed, jd, jerk, vel, e_acc, e_feed, mcr, ef)
+
+
+#: √2 − 1: Klipper's junction deviation is square_corner_velocity² (√2 − 1) / max_accel
+_SCV_JD = math.sqrt(2) - 1
+
+
+def _klipper_move(lim: _Limits, d, L: float, de: float, feed: float):
+    """Klipper's limits of one move in XYZ (klippy's toolhead Move with the cartesian and
+    extruder checks): (accel, minimum_cruise_ratio's pseudo-accel, speed cap, junction
+    deviation, extruder ratio dE/L).
+
+    The one accel (max_accel as set by M204 / SET_VELOCITY_LIMIT) and F × M220 within
+    max_velocity; a move with Z within max_z_velocity and max_z_accel scaled by L/|dZ|; a move
+    that retracts, or extrudes without X/Y, within the extrude-only limits scaled by L/|dE|
+    (dE × M221); the pseudo-accel max_accel × (1 − minimum_cruise_ratio), never above the
+    move's own accel; the junction deviation from the toolhead's accel, not the move's."""
+    a = lim.accel_print
+    v = min(feed * lim.speed_factor, lim.velocity)
+    dz = float(d[2])
+    if dz != 0.0:
+        zr = L / abs(dz)
+        v = min(v, lim.max_feed["z"] * zr)
+        a = min(a, lim.max_accel["z"] * zr)
+    er = de * lim.extrude_factor / L
+    if de != 0.0 and ((float(d[0]) == 0.0 and float(d[1]) == 0.0) or er < 0.0):
+        inv = 1.0 / abs(er)
+        v = min(v, lim.max_feed["e"] * inv)
+        a = min(a, lim.max_accel["e"] * inv)
+    peak_a = min(a, lim.accel_print * (1.0 - lim.min_cruise_ratio))
+    jd = lim.scv ** 2 * _SCV_JD / lim.accel_print
+    return a, peak_a, v, jd, er
+
+
+def _klipper_e_only(lim: _Limits, de: float, feed: float):
+    """Klipper's E-only move: (length |dE| × M221, accel, pseudo-accel, speed cap, junction
+    deviation): the extrude-only limits; F × M220 not capped by max_velocity."""
+    a = lim.max_accel["e"]
+    return (abs(de) * lim.extrude_factor, a,
+            min(a, lim.accel_print * (1.0 - lim.min_cruise_ratio)),
+            min(feed * lim.speed_factor, lim.max_feed["e"]),
+            lim.scv ** 2 * _SCV_JD / lim.accel_print)
 
 
 def build_blocks(program, profile, fast: bool = True) -> Blocks:
@@ -358,13 +477,11 @@ def _build_blocks_reference(program, profile) -> Blocks:
                 stop(ev.dwell_s)
             ei += 1
         feed = mv.feed_mm_s
-        if klipper:
-            feed = min(feed, lim.velocity)
         pts = [np.asarray(mv.start_mm, float)]
         if mv.arc is not None:
             arc = mv.arc
             planar = abs(arc.sweep_rad) * arc.radius_mm
-            nseg = max(1, int(math.ceil(planar / fw.mm_per_arc_segment)))
+            nseg = _arc_segments(planar, mv.end_mm[2] - mv.start_mm[2], fw, klipper)
             th0 = math.atan2(mv.start_mm[1] - arc.center_mm[1], mv.start_mm[0] - arc.center_mm[0])
             for j in range(1, nseg + 1):
                 u = j / nseg
@@ -381,12 +498,15 @@ def _build_blocks_reference(program, profile) -> Blocks:
             if abs(de_total) <= 1e-12:
                 continue
             # E-only block: a stop on both sides
-            v = min(feed, lim.max_feed["e"])
-            a = min(lim.accel_retract, lim.max_accel["e"])
+            if klipper:
+                L, a, peak_a, v, jd = _klipper_e_only(lim, de_total, feed)
+            else:
+                L, v, jd = abs(de_total), min(feed, lim.max_feed["e"]), lim.jd
+                a = peak_a = min(lim.accel_retract, lim.max_accel["e"])
             if rows:
                 stop(0.0)
-            rows.append((pts[0], pts[0], mv.e_start_mm, de_total, abs(de_total), a, a, v, lim.jd, True,
-                         lim.jerk))
+            rows.append((pts[0], pts[0], mv.e_start_mm, de_total, L, a, peak_a, v, jd, True,
+                         lim.jerk, 0.0))
             stop(0.0)
             continue
         e0 = mv.e_start_mm
@@ -397,8 +517,13 @@ def _build_blocks_reference(program, profile) -> Blocks:
             L = _norm3(d)
             if L <= 1e-12:
                 continue
-            u = np.abs(d) / L
             de = de_total * L / total
+            if klipper:
+                a, peak_a, v, jd, er = _klipper_move(lim, d, L, de, feed)
+                rows.append((pts[j], pts[j + 1], e0, de, L, a, peak_a, v, jd, False, None, er))
+                e0 += de
+                continue
+            u = np.abs(d) / L
             # per-axis caps (E too: its speed is de/L times the path speed)
             ue = abs(de) / L
             a = base_a
@@ -410,9 +535,7 @@ def _build_blocks_reference(program, profile) -> Blocks:
             if ue > 1e-12:
                 a = min(a, lim.max_accel["e"] / ue)
                 v = min(v, lim.max_feed["e"] / ue)
-            peak_a = a * (1.0 - lim.min_cruise_ratio) if klipper else a
-            jd = lim.scv ** 2 * (math.sqrt(2) - 1) / a if klipper else lim.jd
-            rows.append((pts[j], pts[j + 1], e0, de, L, a, peak_a, v, jd, False, lim.jerk))
+            rows.append((pts[j], pts[j + 1], e0, de, L, a, a, v, lim.jd, False, lim.jerk, 0.0))
             e0 += de
     while ei < len(events):
         if events[ei].stop:
@@ -433,6 +556,7 @@ def _build_blocks_reference(program, profile) -> Blocks:
     vcap = np.array([r[7] for r in rows])
     jd = np.array([r[8] for r in rows])
     eonly = np.array([r[9] for r in rows])
+    e_ratio = np.array([r[11] for r in rows])
     stop_after = np.zeros(n, bool)
     dwell = np.zeros(n)
     for k, dw in stop_idx.items():
@@ -458,7 +582,15 @@ def _build_blocks_reference(program, profile) -> Blocks:
                 lim_v = min(lim_v, jk[ax] / dv[a_i])
         jerk_v[k] = lim_v
     return Blocks(start, end, e0, de, L, acc, peak, vcap, stop_after, dwell, jd, turn, lead, klipper,
-                  jerk_v)
+                  jerk_v, e_ratio if klipper else None, fw.instantaneous_corner_velocity_mm_s)
+
+
+def _arc_segments(planar_mm: float, dz_mm: float, fw, klipper: bool) -> int:
+    """Chords of an arc: Marlin's ceil(planar length / mm_per_arc_segment); Klipper's
+    [gcode_arcs] floor(helix length / resolution) (at least one)."""
+    if klipper:
+        return max(1, int(math.floor(math.hypot(planar_mm, dz_mm) / fw.mm_per_arc_segment)))
+    return max(1, int(math.ceil(planar_mm / fw.mm_per_arc_segment)))
 
 
 def _arc_rows(mv, lim: _Limits, fw, klipper: bool, feed: float):
@@ -468,7 +600,7 @@ def _arc_rows(mv, lim: _Limits, fw, klipper: bool, feed: float):
     arc = mv.arc
     pts = [np.asarray(mv.start_mm, float)]
     planar = abs(arc.sweep_rad) * arc.radius_mm
-    nseg = max(1, int(math.ceil(planar / fw.mm_per_arc_segment)))
+    nseg = _arc_segments(planar, mv.end_mm[2] - mv.start_mm[2], fw, klipper)
     th0 = math.atan2(mv.start_mm[1] - arc.center_mm[1], mv.start_mm[0] - arc.center_mm[0])
     for j in range(1, nseg + 1):
         u = j / nseg
@@ -489,8 +621,13 @@ def _arc_rows(mv, lim: _Limits, fw, klipper: bool, feed: float):
         L = _norm3(d)
         if L <= 1e-12:
             continue
-        u = np.abs(d) / L
         de = de_total * L / total
+        if klipper:
+            a, peak_a, v, jd, er = _klipper_move(lim, d, L, de, feed)
+            rows.append((pts[j], pts[j + 1], e0, de, L, a, peak_a, v, jd, False, None, er))
+            e0 += de
+            continue
+        u = np.abs(d) / L
         ue = abs(de) / L
         a = base_a
         v = feed
@@ -501,9 +638,7 @@ def _arc_rows(mv, lim: _Limits, fw, klipper: bool, feed: float):
         if ue > 1e-12:
             a = min(a, lim.max_accel["e"] / ue)
             v = min(v, lim.max_feed["e"] / ue)
-        peak_a = a * (1.0 - lim.min_cruise_ratio) if klipper else a
-        jd = lim.scv ** 2 * (math.sqrt(2) - 1) / a if klipper else lim.jd
-        rows.append((pts[j], pts[j + 1], e0, de, L, a, peak_a, v, jd, False, lim.jerk))
+        rows.append((pts[j], pts[j + 1], e0, de, L, a, a, v, lim.jd, False, lim.jerk, 0.0))
         e0 += de
     return rows
 
@@ -521,8 +656,6 @@ def _build_blocks_fast(program, profile) -> Blocks:
     events = program.events
     m = len(moves)
     snaps, si = _limit_snapshots(program, profile, klipper)
-    snap_a_print = np.array([q.accel_print for q in snaps])[si]
-    snap_a_travel = np.array([q.accel_travel for q in snaps])[si]
     macc = np.array([[q.max_accel[k] for k in "xyze"] for q in snaps])[si]
     mfeed = np.array([[q.max_feed[k] for k in "xyze"] for q in snaps])[si]
     start = np.array([mv.start_mm for mv in moves], dtype=float).reshape(m, 3)
@@ -530,8 +663,6 @@ def _build_blocks_fast(program, profile) -> Blocks:
     e_start = np.array([mv.e_start_mm for mv in moves], dtype=float)
     de_total = np.array([mv.e_end_mm for mv in moves], dtype=float) - e_start
     feed = np.array([mv.feed_mm_s for mv in moves], dtype=float)
-    if klipper:
-        feed = np.minimum(feed, np.array([q.velocity for q in snaps])[si])
     is_arc = np.array([mv.arc is not None for mv in moves], dtype=bool)
     d = end - start
     total = np.sqrt((d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1]) + d[:, 2] * d[:, 2])
@@ -570,58 +701,28 @@ def _build_blocks_fast(program, profile) -> Blocks:
     b_jd = np.empty(n)
     b_eonly = np.zeros(n, bool)
     b_jerk = np.full((n, 3), np.nan)  # NaN: junction deviation applies at this block
+    b_er = np.zeros(n)
 
-    snap_jerk = np.array([[np.nan] * 3 if q.jerk is None else [q.jerk[k] for k in "xyz"]
-                          for q in snaps])
-    snap_jd = np.array([q.jd for q in snaps])
-    snap_mcr = np.array([q.min_cruise_ratio for q in snaps])
-    # Klipper's junction deviation from scv: the scalar part as the reference computes it
-    snap_scv_k = np.array([q.scv ** 2 * (math.sqrt(2) - 1) for q in snaps])
-
-    # straight moves: one block each
+    # straight moves: one block each; E-only moves: one block each, a stop on both sides
     li = np.flatnonzero(line)
-    r = rows_before[li]
-    dl = d[li]
-    L = total[li]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        u = np.abs(dl) / L[:, None]
-        de = de_total[li] * L / total[li]
-        ue = np.abs(de) / L
-        a = np.where(de_total[li] > 0, snap_a_print[li], snap_a_travel[li])
-        v = feed[li]
-        for k in range(3):
-            big = u[:, k] > 1e-12
-            a = np.where(big, np.minimum(a, macc[li, k] / u[:, k]), a)
-            v = np.where(big, np.minimum(v, mfeed[li, k] / u[:, k]), v)
-        big = ue > 1e-12
-        a = np.where(big, np.minimum(a, macc[li, 3] / ue), a)
-        v = np.where(big, np.minimum(v, mfeed[li, 3] / ue), v)
-    b_start[r] = start[li]
-    b_end[r] = end[li]
-    b_e0[r] = e_start[li]
-    b_de[r] = de
-    b_L[r] = L
-    b_acc[r] = a
-    b_peak[r] = a * (1.0 - snap_mcr[si[li]]) if klipper else a
-    b_vcap[r] = v
-    b_jd[r] = snap_scv_k[si[li]] / a if klipper else snap_jd[si[li]]
-    b_jerk[r] = snap_jerk[si[li]]
-
-    # E-only moves: one block each, a stop on both sides
     ei_ = np.flatnonzero(eonly)
-    r = rows_before[ei_]
-    a = np.minimum(np.array([q.accel_retract for q in snaps])[si[ei_]], macc[ei_, 3])
-    b_start[r] = start[ei_]
-    b_end[r] = start[ei_]
-    b_e0[r] = e_start[ei_]
-    b_de[r] = de_total[ei_]
-    b_L[r] = np.abs(de_total[ei_])
-    b_acc[r] = a
-    b_peak[r] = a
-    b_vcap[r] = np.minimum(feed[ei_], mfeed[ei_, 3])
-    b_jd[r] = snap_jd[si[ei_]]
-    b_eonly[r] = True
-    b_jerk[r] = snap_jerk[si[ei_]]
+    for idx in (li, ei_):
+        r = rows_before[idx]
+        b_start[r] = start[idx]
+        b_e0[r] = e_start[idx]
+    b_end[rows_before[li]] = end[li]
+    b_end[rows_before[ei_]] = start[ei_]
+    b_eonly[rows_before[ei_]] = True
+    if klipper:
+        _klipper_fast(snaps, si, li, ei_, rows_before[li], rows_before[ei_], d[li], total[li],
+                      de_total, feed, macc, mfeed, b_de, b_L, b_acc, b_peak, b_vcap, b_jd, b_er)
+    else:
+        _marlin_fast(snaps, si, li, ei_, rows_before[li], rows_before[ei_], d[li], total[li],
+                     de_total, feed, macc, mfeed, b_de, b_L, b_acc, b_peak, b_vcap, b_jd)
+        snap_jerk = np.array([[np.nan] * 3 if q.jerk is None else [q.jerk[k] for k in "xyz"]
+                              for q in snaps])
+        b_jerk[rows_before[li]] = snap_jerk[si[li]]
+        b_jerk[rows_before[ei_]] = snap_jerk[si[ei_]]
 
     for mi, rows in arc_rows.items():
         r0 = int(rows_before[mi])
@@ -629,6 +730,7 @@ def _build_blocks_fast(program, profile) -> Blocks:
             b_start[r0 + j], b_end[r0 + j] = row[0], row[1]
             b_e0[r0 + j], b_de[r0 + j], b_L[r0 + j] = row[2], row[3], row[4]
             b_acc[r0 + j], b_peak[r0 + j], b_vcap[r0 + j], b_jd[r0 + j] = row[5:9]
+            b_er[r0 + j] = row[11]
             if row[10] is not None:
                 b_jerk[r0 + j] = [row[10][k] for k in "xyz"]
 
@@ -660,27 +762,104 @@ def _build_blocks_fast(program, profile) -> Blocks:
         jv = np.where(dv > 1e-12, b_jerk[1:] / dv, np.inf).min(axis=1)
     jerk_v = np.where(np.isnan(b_jerk[1:, 0]), np.inf, jv)
     return Blocks(b_start, b_end, b_e0, b_de, b_L, b_acc, b_peak, b_vcap, stop_after, dwell,
-                  b_jd, turn, lead, klipper, jerk_v)
+                  b_jd, turn, lead, klipper, jerk_v, b_er if klipper else None,
+                  fw.instantaneous_corner_velocity_mm_s)
+
+
+def _marlin_fast(snaps, si, li, ei_, rl, re_, dl, L, de_total, feed, macc, mfeed, b_de, b_L,
+                 b_acc, b_peak, b_vcap, b_jd):
+    """Marlin's blocks of the straight moves ``li`` (rows ``rl``, deltas ``dl``, lengths
+    ``L``) and the E-only moves ``ei_`` (rows ``re_``), element-wise as the reference."""
+    snap_a_print = np.array([q.accel_print for q in snaps])[si]
+    snap_a_travel = np.array([q.accel_travel for q in snaps])[si]
+    snap_jd = np.array([q.jd for q in snaps])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = np.abs(dl) / L[:, None]
+        de = de_total[li] * L / L
+        ue = np.abs(de) / L
+        a = np.where(de_total[li] > 0, snap_a_print[li], snap_a_travel[li])
+        v = feed[li]
+        for k in range(3):
+            big = u[:, k] > 1e-12
+            a = np.where(big, np.minimum(a, macc[li, k] / u[:, k]), a)
+            v = np.where(big, np.minimum(v, mfeed[li, k] / u[:, k]), v)
+        big = ue > 1e-12
+        a = np.where(big, np.minimum(a, macc[li, 3] / ue), a)
+        v = np.where(big, np.minimum(v, mfeed[li, 3] / ue), v)
+    b_de[rl] = de
+    b_L[rl] = L
+    b_acc[rl] = a
+    b_peak[rl] = a
+    b_vcap[rl] = v
+    b_jd[rl] = snap_jd[si[li]]
+    a = np.minimum(np.array([q.accel_retract for q in snaps])[si[ei_]], macc[ei_, 3])
+    b_de[re_] = de_total[ei_]
+    b_L[re_] = np.abs(de_total[ei_])
+    b_acc[re_] = a
+    b_peak[re_] = a
+    b_vcap[re_] = np.minimum(feed[ei_], mfeed[ei_, 3])
+    b_jd[re_] = snap_jd[si[ei_]]
+
+
+def _klipper_fast(snaps, si, li, ei_, rl, re_, dl, L, de_total, feed, macc, mfeed, b_de, b_L,
+                  b_acc, b_peak, b_vcap, b_jd, b_er):
+    """:func:`_klipper_move` and :func:`_klipper_e_only` element-wise (same operations in the
+    same order: bit-identical) for the straight moves ``li`` and the E-only moves ``ei_``."""
+    ap = np.array([q.accel_print for q in snaps])[si]
+    vel = np.array([q.velocity for q in snaps])[si]
+    sf = np.array([q.speed_factor for q in snaps])[si]
+    ef = np.array([q.extrude_factor for q in snaps])[si]
+    pseudo = ap * (1.0 - np.array([q.min_cruise_ratio for q in snaps])[si])
+    jd = np.array([q.scv ** 2 * _SCV_JD for q in snaps])[si] / ap
+    with np.errstate(divide="ignore", invalid="ignore"):
+        de = de_total[li] * L / L
+        a = ap[li]
+        v = np.minimum(feed[li] * sf[li], vel[li])
+        dz = dl[:, 2]
+        zr = L / np.abs(dz)
+        hz = dz != 0.0
+        v = np.where(hz, np.minimum(v, mfeed[li, 2] * zr), v)
+        a = np.where(hz, np.minimum(a, macc[li, 2] * zr), a)
+        er = de * ef[li] / L
+        he = (de != 0.0) & (((dl[:, 0] == 0.0) & (dl[:, 1] == 0.0)) | (er < 0.0))
+        inv = 1.0 / np.abs(er)
+        v = np.where(he, np.minimum(v, mfeed[li, 3] * inv), v)
+        a = np.where(he, np.minimum(a, macc[li, 3] * inv), a)
+    b_de[rl] = de
+    b_L[rl] = L
+    b_acc[rl] = a
+    b_peak[rl] = np.minimum(a, pseudo[li])
+    b_vcap[rl] = v
+    b_jd[rl] = jd[li]
+    b_er[rl] = er
+    a = macc[ei_, 3]
+    b_de[re_] = de_total[ei_]
+    b_L[re_] = np.abs(de_total[ei_]) * ef[ei_]
+    b_acc[re_] = a
+    b_peak[re_] = np.minimum(a, pseudo[ei_])
+    b_vcap[re_] = np.minimum(feed[ei_] * sf[ei_], mfeed[ei_, 3])
+    b_jd[re_] = jd[ei_]
 
 
 def _plan(blocks: Blocks):
     n = blocks.length_mm.size
-    # junction rule with the block's own deviation (Marlin: M205 J in force; Klipper: from scv)
+    if blocks.klipper:
+        vj2 = np.zeros(n + 1)
+        if n:
+            vj2[1:n] = klipper_junction_v2(blocks.turn_cos, blocks.accel, blocks.jd,
+                                           blocks.length_mm, blocks.vcap, blocks.stop_after,
+                                           blocks.e_ratio, blocks.icv_mm_s)
+        return klipper_lookahead(vj2, blocks.length_mm, blocks.accel, blocks.peak_accel,
+                                 blocks.vcap, blocks.dwell_after_s, blocks.lead_s)
+    # junction rule with the block's own deviation (M205 J in force), classic jerk where set
     vj = np.zeros(n + 1)
     if n:
-        vj[1:n] = junction_limits(blocks.turn_cos, blocks.accel, blocks.jd[1:],
-                                  blocks.length_mm if blocks.klipper else None,
+        vj[1:n] = junction_limits(blocks.turn_cos, blocks.accel, blocks.jd[1:], None,
                                   blocks.jerk_v, blocks.vcap, blocks.stop_after,
-                                  None if blocks.klipper else blocks.length_mm)
+                                  blocks.length_mm)
     vj = forward_backward(vj, blocks.length_mm, blocks.accel)
-    tr = trapezoids(vj, blocks.length_mm, blocks.accel, blocks.vcap, blocks.dwell_after_s,
-                    blocks.lead_s)
-    if blocks.klipper and np.any(blocks.peak_accel < blocks.accel):
-        # minimum_cruise_ratio: the peak of each block is what the smoothed accel allows
-        vcap2 = peak_speed(vj[:-1], vj[1:], blocks.peak_accel, blocks.length_mm, blocks.vcap)
-        tr = trapezoids(vj, blocks.length_mm, blocks.accel, vcap2, blocks.dwell_after_s,
-                        blocks.lead_s)
-    return tr
+    return trapezoids(vj, blocks.length_mm, blocks.accel, blocks.vcap, blocks.dwell_after_s,
+                      blocks.lead_s)
 
 
 def estimate_time_s(program, profile, fast: bool = True) -> float:

@@ -1,14 +1,17 @@
-"""Hide an effect in a virtual-machine log; diagnose must name it (issue 6, item 4).
+"""Hide an effect in a virtual-machine log; diagnose must name it (issues 6 and 19).
 
-The plant is the twin's mean response (``nominal=True``) plus 1 µm sensor noise (an encoder-class sensor; with 2 µm the smallest resonance shifts, ~1.8 µm RMS, cannot halve a noise-dominated held-out RMS) plus one
-seeded random effect (``vm.effects.random_effect``). Fast run: 3 seeds per kind; the issue's
-≥ 20 seeds per kind run under ``-m slow``.
+The plant is the twin's mean response (``nominal=True``) plus 1 µm sensor noise (an
+encoder-class sensor) plus one seeded random effect (``vm.effects.random_effect``). Fast run:
+3 seeds per kind; ≥ 20 seeds per kind run under ``-m slow``. Clean logs of plants *drawn* from
+the profile's spread (the machine is not the twin's mean) must give ``none``: the diagnosis
+absorbs what the known uncertainty allows before it names anything. benchA (a machine
+simulated elsewhere) is in test_diagnose_bench_a.py.
 """
 
 import numpy as np
 import pytest
 
-from gcode_feedopt.closedloop.diagnose import KINDS, diagnose_arrays, nominal_impulse
+from gcode_feedopt.closedloop.diagnose import KINDS, axis_physics, diagnose_arrays
 from gcode_feedopt.closedloop.motion import point_to_point
 from gcode_feedopt.profile import load_profile
 from gcode_feedopt.vm import effects as fx
@@ -16,18 +19,20 @@ from gcode_feedopt.vm.plant import Plant
 from gcode_feedopt.vm.trajectory import Trajectory
 
 PROFILE = load_profile("ender3pro")
-IMPULSE = nominal_impulse(PROFILE)
-MODE_HZ = fx.dominant_mode_hz(IMPULSE["x"][0], PROFILE.ts_s)
+IMPULSE = axis_physics(PROFILE)
+MODE_HZ = fx.dominant_mode_hz(IMPULSE["x"].mean, PROFILE.ts_s)
+NOISE_MM = 0.001
 SCALE_PARAM = {"periodic_time": "frequency_hz", "periodic_position": "wavelength_mm",
                "resonance_shift": "frequency_hz"}
 
 
-def run_case(kind, seed):
+def run_case(kind, seed, nominal=True):
     rng = np.random.default_rng(1000 + seed)
     cmd = point_to_point(rng, duration_s=20.0, ts_s=PROFILE.ts_s)
     hidden = None if kind == "none" else fx.random_effect(rng, kind, mode_hz=MODE_HZ)
-    eff = ([hidden] if hidden else []) + [fx.SensorNoise("x", std_mm=0.001), fx.SensorNoise("y", std_mm=0.001)]
-    out = Plant(PROFILE, seed=seed, effects=eff, nominal=True).simulate(
+    eff = ([hidden] if hidden else []) + [fx.SensorNoise("x", std_mm=NOISE_MM),
+                                          fx.SensorNoise("y", std_mm=NOISE_MM)]
+    out = Plant(PROFILE, seed=seed, effects=eff, nominal=nominal).simulate(
         Trajectory(ts_s=PROFILE.ts_s, pos_mm=cmd, e_mm=np.zeros(len(cmd))))
     return hidden, diagnose_arrays(cmd, out.measured_mm, PROFILE.ts_s, IMPULSE)
 
@@ -46,7 +51,10 @@ def check(kind, seeds):
             true = hidden.params()[key]
             ok = abs(top["params"][key] - true) <= 0.02 * true
         ax = hidden.axis
-        ok = ok and d.holdout_rms_mm["after"][ax] <= 0.5 * d.holdout_rms_mm["before"][ax]
+        # the held-out error at least halves, or reaches the sensor's noise (a 1.8 µm shift
+        # in 1 µm noise cannot halve)
+        ok = ok and d.holdout_rms_mm["after"][ax] <= max(0.5 * d.holdout_rms_mm["before"][ax],
+                                                         1.1 * NOISE_MM)
         right += ok
     return right / len(seeds)
 
@@ -62,14 +70,24 @@ def test_hidden_effect_found_20_seeds(kind):
     assert check(kind, range(100, 120)) >= 0.95
 
 
+@pytest.mark.parametrize("seed", range(10))
+def test_clean_drawn_plants_name_nothing(seed):
+    """Ten machines drawn from the profile's spread (not its mean), no effect: none. The
+    twin's mean misses them by up to several µm; the plant draw absorbs that to the noise."""
+    _, d = run_case("none", 200 + seed, nominal=False)
+    assert [e["kind"] for e in d.effects] == ["none"], d.effects
+    assert max(d.holdout_rms_mm["plant_draw_only"].values()) < 1.3 * NOISE_MM
+
+
 def test_json_keys():
     hidden, d = run_case("periodic_time", 7)
     j = d.to_dict()
     assert set(j["residual_rms_mm"]) == {"x", "y"}
-    assert set(j["holdout_rms_mm"]) == {"before", "after"}
+    assert set(j["holdout_rms_mm"]) >= {"before", "after", "plant_draw_only"}
     e = j["effects"][0]
     assert set(e) >= {"kind", "axis", "params", "confidence"}
     assert e["kind"] == "periodic_time" and 0 <= e["confidence"] <= 1
-    # ranked by explained residual
-    ss = [c.explained_ss for c in d.candidates]
+    # ranked by the sum of squares explained on the fit part; the test's figures reported
+    ss = [c.explained_fit for c in d.candidates]
     assert ss == sorted(ss, reverse=True)
+    assert e["test"]["t_holdout"] > e["test"]["crit_holdout"]

@@ -54,7 +54,10 @@ def test_extended_profile_round_trip(tmp_path):
     assert back.axes["y"].effects == ext.axes["y"].effects == ({"kind": "delay", "params": {"delay_s": 0.004}},)
     np.testing.assert_allclose(axis_impulse(back, "y").mean, axis_impulse(ext, "y").mean, atol=1e-12)
     assert back.provenance["closed_loop"] == ext.provenance["closed_loop"]
-    assert back.provenance["closed_loop"][0]["recorded_not_modelled"][0]["kind"] == "backlash"
+    assert back.axes["x"].effects == ext.axes["x"].effects
+    assert back.axes["x"].effects[0]["params"]["magnitude_mm"] == 0.05
+    changes = {r["kind"]: r["changes"] for r in back.provenance["closed_loop"][0]["applied_to_the_model"]}
+    assert changes == {"delay": "physics", "backlash": "mean"}
 
 
 def test_diagnose_cli_writes_profile(tmp_path):
@@ -68,3 +71,33 @@ def test_diagnose_cli_writes_profile(tmp_path):
     ext = load_profile(out)
     rec = ext.provenance["closed_loop"][-1]["applied_to_the_model"][0]
     assert rec["kind"] == "delay" and abs(rec["params"]["delay_s"] - 0.006) < 0.00012
+
+
+@pytest.mark.parametrize("name", ["log_04.csv", "log_05.csv", "log_06.csv", "log_08.csv",
+                                  "log_09.csv", "log_10.csv", "log_11.csv"])
+def test_written_profile_predicts_what_diagnose_reported(tmp_path, bench_a, name):
+    """Issue 19, point 4: the profile ``diagnose -o`` writes, loaded back from its YAML and run
+    by ``predict --no-learn``, has the held-out RMS ``diagnose`` reported, within 10 %."""
+    import json
+
+    from tests.conftest import INDEPENDENT_DIR
+
+    prof, _ = bench_a
+    base = save_profile(prof, tmp_path / "benchA.yaml")
+    log = INDEPENDENT_DIR / "logs" / name
+    r = CliRunner().invoke(cli, ["diagnose", "-m", str(base), str(log), "--json",
+                                 str(tmp_path / "d.json"), "-o", str(tmp_path / "ext.yaml")])
+    assert r.exit_code == 0, r.output
+    d = json.loads((tmp_path / "d.json").read_text())
+    r = CliRunner().invoke(cli, ["predict", "-m", str(tmp_path / "ext.yaml"), str(log), "-o",
+                                 str(tmp_path / "p.csv"), "--no-learn"])
+    assert r.exit_code == 0, r.output
+    pred = np.loadtxt(tmp_path / "p.csv", delimiter=",", skiprows=1)
+    meas = np.loadtxt(log, delimiter=",", skiprows=1)
+    k = d["fit_samples"]
+    for i, ax in enumerate("xy"):
+        rms = float(np.sqrt(np.mean((meas[k:, 3 + i] - pred[k:, 1 + 2 * i]) ** 2)))
+        want = d["holdout_rms_mm"]["after"][ax]
+        assert abs(rms - want) <= 0.1 * want, (ax, rms, want)
+        # and the extension helps where the effect is
+        assert d["holdout_rms_mm"]["after"][ax] <= d["holdout_rms_mm"]["before"][ax] * 1.001

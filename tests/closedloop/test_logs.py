@@ -255,7 +255,10 @@ def test_diagnose_cli_json(tmp_path):
     e = d["effects"][0]
     assert e["kind"] == "periodic_time" and e["axis"] == "y"
     assert abs(e["params"]["frequency_hz"] - 37.0) < 0.74
-    assert d["holdout_rms_mm"]["after"]["y"] < 0.5 * d["holdout_rms_mm"]["before"]["y"]
+    # a fan keeps no phase from print to print: the written profile carries it as variance,
+    # so only this log's fit (its phase) lowers the held-out error
+    assert d["holdout_rms_mm"]["after_fitted"]["y"] < 0.5 * d["holdout_rms_mm"]["before"]["y"]
+    assert d["holdout_rms_mm"]["after"]["y"] == d["holdout_rms_mm"]["before"]["y"]
     assert png.stat().st_size > 10_000
 
 

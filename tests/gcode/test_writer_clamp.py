@@ -94,3 +94,17 @@ def test_klipper_accel_is_clamped(tmp_path):
     assert lines == [b"SET_VELOCITY_LIMIT ACCEL=5000", b"SET_VELOCITY_LIMIT ACCEL=2000",
                      b"SET_VELOCITY_LIMIT ACCEL=5000"]
     assert rep.output_time_s == pytest.approx(rep.plan_time_s, rel=1e-3)
+
+
+@pytest.mark.parametrize("mid, after", [
+    (["M204 P800"], []),                                   # refused by Klipper: no new line
+    (["M204 S4000"], [b"SET_VELOCITY_LIMIT ACCEL=2000"]),  # sets 4000: ours follows it
+])
+def test_klipper_clamp_follows_only_lines_klipper_accepts(tmp_path, mid, after):
+    head = ["SET_VELOCITY_LIMIT ACCEL=5000"]
+    rep, data = run(tmp_path, part(head, mid=mid), KLIPPER, amax_mm_s2=2000.0)
+    lines = [ln for _, ln in accel_lines(data, b"SET_VELOCITY_LIMIT")]
+    restore = b"SET_VELOCITY_LIMIT ACCEL=" + (b"4000" if after else b"5000")
+    assert lines == [b"SET_VELOCITY_LIMIT ACCEL=5000", b"SET_VELOCITY_LIMIT ACCEL=2000",
+                     *after, restore]
+    assert rep.output_time_s == pytest.approx(rep.plan_time_s, rel=1e-3)

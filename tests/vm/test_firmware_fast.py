@@ -26,8 +26,9 @@ REAL = {p.name: p for p in sorted(GCODE_DIR.glob("*.gcode"))}
 SAMPLES = {p.name: p for p in [REPO / "sample_gcode" / "butterfly.gcode",
                                REPO / "sample_gcode" / "part_prusaslicer.gcode"]}
 
-#: every event the model honours, E-only moves, firmware retraction, arcs, a dwell before the
-#: first move (lead-in), zero-length moves and an event after the last move
+#: every event the models honour (or Klipper refuses), E-only moves, firmware retraction, arcs,
+#: a dwell before the first move (lead-in), zero-length moves, a retraction while travelling,
+#: Z with E, and an event after the last move
 EVENTS = b"""G4 P250
 M204 P1500 T2500 R1200
 M201 X2000 Y1800 Z80 E4000
@@ -62,6 +63,16 @@ G1 X10 Y10 F12000
 M205 X12 Y12
 G1 X20 Y11 E6.0
 G1 X30 Y10 E6.3
+M221 S95
+M220 S110
+G1 X35 Y15 E5.9
+G1 Z0.8 E6.0
+M204 P900
+M204 T1100
+G1 E5.0
+M221
+M220 S-5
+G1 X36 Y15 E6.5
 G91
 G1 X-5 Y5 E0.2
 G90
@@ -101,6 +112,10 @@ def test_every_event(flavour):
     assert np.any(blocks.stop_after[:-1]) and np.any(blocks.accel != blocks.accel[0])
     if flavour == "marlin":
         assert np.any(np.isfinite(blocks.jerk_v)) and np.any(~np.isfinite(blocks.jerk_v))
+    else:
+        # Klipper's rules all reached: a retraction while travelling, the pseudo-accel, Z
+        assert np.any(blocks.e_ratio < 0) and np.any(blocks.peak_accel < blocks.accel)
+        assert np.any(blocks.accel < 100.0 + 1e-9)
 
 
 @pytest.mark.parametrize("flavour", sorted(PROFILES))

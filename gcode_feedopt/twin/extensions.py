@@ -1,0 +1,170 @@
+"""A profile's extensions that are not a change of the axis's linear response (issue 19).
+
+``diagnose`` names effects; ``extend_profile`` writes them into ``axes.<axis>.effects`` with the
+parameters that were fitted. Three kinds change the physics itself and are applied to every
+modal fit by ``twin.physics.apply_effects`` (delay, gain, resonance_shift). The others add a
+deterministic term to the predicted position, computed here from the commanded motion, the same
+way ``diagnose`` fitted it:
+
+- ``periodic_position``: A·sin(2π x_cmd/λ + φ), through the axis dynamics (form ``dynamics``)
+  or at the output (form ``output``);
+- ``backlash``: the play of width b on the command before the dynamics (form ``input``) or on
+  the response (form ``output``), plus ``offset_mm``, where the band sat in the log it was
+  fitted on;
+- ``friction``: m·(−sign v_cmd), relaxing with ``relax_s`` once the axis stops, through the
+  dynamics (``response``), the force response (``force``) or at the output (``output``);
+- ``cross_coupling``: ``mm_per_mm_s2`` times the other axis's predicted acceleration through
+  this axis's dynamics, or ``coefficient`` times the other axis's predicted motion;
+- ``gain``: besides its change of the response (about the first commanded sample, where the
+  twin works), the constant (s − 1)·x_0 that a scale about the machine origin adds.
+
+``periodic_time`` (a fan) keeps no phase from one print to the next: it adds the variance A²/2
+of a sinusoid of random phase to the prediction instead of a mean.
+
+Pure functions on arrays; ``mean_offsets(profile, cmd)`` is what the twin's users call.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..vm import effects as fx
+from ..vm.plant import respond
+
+#: kinds applied to the modal fits (``twin.physics``)
+LINEAR_KINDS = ("delay", "gain", "resonance_shift")
+#: kinds that add a deterministic term here
+ADDITIVE_KINDS = ("periodic_position", "backlash", "friction", "cross_coupling")
+#: kinds that add variance
+VARIANCE_KINDS = ("periodic_time",)
+
+#: kind -> {parameter: (lowest, highest)} of what a profile may hold; strings are choices
+PARAMS = {
+    "delay": {"delay_s": (-0.1, 0.1)},
+    "gain": {"scale": (0.5, 2.0)},
+    "resonance_shift": {"frequency_hz": (1e-3, 1e4), "form": ("mass", "scale")},
+    "periodic_time": {"frequency_hz": (1e-3, 1e4), "amplitude_mm": (0.0, 10.0)},
+    "periodic_position": {"wavelength_mm": (1e-3, 1e4), "amplitude_mm": (0.0, 10.0),
+                          "phase_rad": (-10.0, 10.0), "form": ("dynamics", "output")},
+    "backlash": {"magnitude_mm": (0.0, 10.0), "offset_mm": (-10.0, 10.0),
+                 "form": ("input", "output")},
+    "friction": {"magnitude_mm": (-10.0, 10.0), "relax_s": (0.0, 1e6),
+                 "form": ("response", "force", "output")},
+    "cross_coupling": {"from_axis": ("x", "y"), "mm_per_mm_s2": (-1.0, 1.0),
+                       "coefficient": (-1.0, 1.0), "form": ("acceleration", "position")},
+}
+#: parameters a kind must have (the rest default as in ``DEFAULTS``)
+REQUIRED = {
+    "delay": ("delay_s",), "gain": ("scale",), "resonance_shift": ("frequency_hz",),
+    "periodic_time": ("frequency_hz", "amplitude_mm"),
+    "periodic_position": ("wavelength_mm", "amplitude_mm"), "backlash": ("magnitude_mm",),
+    "friction": ("magnitude_mm",), "cross_coupling": ("from_axis",),
+}
+DEFAULTS = {
+    "periodic_position": {"phase_rad": 0.0, "form": "dynamics"},
+    "backlash": {"offset_mm": 0.0, "form": "input"},
+    "friction": {"relax_s": 0.0, "form": "response"},
+    "cross_coupling": {"mm_per_mm_s2": 0.0, "coefficient": 0.0, "form": "acceleration"},
+}
+
+
+def relax_sign(cmd_mm: np.ndarray, ts_s: float, tau_s: float) -> np.ndarray:
+    """(K,) −sign(v_cmd) that decays as exp(−t/τ) once the axis stops (τ = 0: at once,
+    τ = inf: held, as a stiction would)."""
+    s = -fx.velocity_sign(np.asarray(cmd_mm, float), ts_s)
+    if tau_s <= 0:
+        return s
+    a = math.exp(-ts_s / tau_s) if math.isfinite(tau_s) else 1.0
+    out = s.copy()
+    for k in np.flatnonzero(s == 0).tolist():
+        out[k] = a * out[k - 1] if k > 0 else 0.0
+    return out
+
+
+def additive_term(kind: str, params: dict, cmd_mm: np.ndarray, ts_s: float, h: np.ndarray, *,
+                  other_pred_mm: np.ndarray | None = None, force_h: np.ndarray | None = None,
+                  pred_mm: np.ndarray | None = None) -> np.ndarray:
+    """(K,) the deterministic term one extension adds to an axis's predicted position, mm.
+
+    Args:
+        cmd_mm: (K,) the axis's commanded position. h: (n,) its unit-DC impulse response.
+        other_pred_mm: (K,) the other axis's predicted position (cross_coupling).
+        force_h: (n,) the force response (friction form ``force``; else ``h`` is used).
+        pred_mm: (K,) the axis's prediction, for the ``output`` forms (default h * cmd).
+    """
+    p = {**DEFAULTS.get(kind, {}), **params}
+    cmd = np.asarray(cmd_mm, float)
+    K = cmd.size
+    if kind == "gain":
+        return np.full(K, (p["scale"] - 1.0) * cmd[0])
+    pred = respond(cmd, h) if pred_mm is None else pred_mm
+    if kind == "periodic_position":
+        s = p["amplitude_mm"] * np.sin(2 * np.pi * cmd / p["wavelength_mm"] + p["phase_rad"])
+        return respond(s, h) if p["form"] == "dynamics" else s
+    if kind == "backlash":
+        b = p["magnitude_mm"]
+        if p["form"] == "input":
+            return respond(fx.play(cmd, b), h) - pred + p["offset_mm"]
+        return fx.play(pred, b) - pred + p["offset_mm"]
+    if kind == "friction":
+        s = relax_sign(cmd, ts_s, p["relax_s"])
+        if p["form"] == "output":
+            return p["magnitude_mm"] * s
+        return p["magnitude_mm"] * respond(s, force_h if p["form"] == "force" and force_h is not None else h)
+    if kind == "cross_coupling":
+        if other_pred_mm is None:
+            return np.zeros(K)
+        po = np.asarray(other_pred_mm, float)
+        if p["form"] == "acceleration":
+            acc = np.gradient(np.gradient(po, ts_s), ts_s)
+            return p["mm_per_mm_s2"] * respond(acc, h)
+        return p["coefficient"] * (po - po[0])
+    return np.zeros(K)
+
+
+def extra_variance_mm2(effects) -> float:
+    """Variance the axis's periodic_time extensions add (a sinusoid of random phase: A²/2)."""
+    return float(sum(0.5 * e["params"]["amplitude_mm"] ** 2 for e in effects
+                     if e["kind"] in VARIANCE_KINDS))
+
+
+def mean_offsets(profile, cmd_mm: np.ndarray) -> np.ndarray:
+    """(K, 2) what the profile's extensions add to the twin's mean prediction of X, Y (zeros
+    when it has none)."""
+    from .physics import axis_impulse
+
+    cmd = np.asarray(cmd_mm, float)
+    K = cmd.shape[0]
+    out = np.zeros((K, 2))
+    axes = ("x", "y")
+    if not any(e["kind"] in ADDITIVE_KINDS or e["kind"] == "gain"
+               for ax in axes for e in profile.axes[ax].effects):
+        return out
+    h = {}
+    for ax in axes:
+        m = np.asarray(axis_impulse(profile, ax).mean)
+        h[ax] = m / np.sum(m)
+    preds = {ax: respond(cmd[:, i], h[ax]) for i, ax in enumerate(axes)}
+    force = {}
+    for i, ax in enumerate(axes):
+        for e in profile.axes[ax].effects:
+            if e["kind"] not in ADDITIVE_KINDS and e["kind"] != "gain":
+                continue
+            fh = None
+            if e["kind"] == "friction" and e["params"].get("form") == "force":
+                if ax not in force:
+                    force[ax] = _force_h(profile, ax)
+                fh = force[ax]
+            other = e["params"].get("from_axis")
+            out[:, i] += additive_term(e["kind"], e["params"], cmd[:, i], profile.ts_s, h[ax],
+                                       other_pred_mm=preds.get(other), force_h=fh,
+                                       pred_mm=preds[ax])
+    return out
+
+
+def _force_h(profile, axis):
+    from ..closedloop.diagnose import axis_physics
+
+    return axis_physics(profile)[axis].force
