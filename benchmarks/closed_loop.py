@@ -13,8 +13,8 @@ slow-down optimizer and the current profile; it never sees the plant), runs the 
 plant, writes the encoder log, reads it back as a user's log (closedloop.logs.load_log) and
 ``learn``s the profile from it (closedloop.learn.learn_logs). Printed per round: cycle time,
 RMS γ against (1 − η)·E_max, fraction of extruded samples within E_max, the twin's open-loop
-prediction RMS on that print, and what learn wrote (the level of what the twin cannot predict,
-per axis). The conservative plan (the largest uniform scale of V and A whose run on the first
+prediction RMS on that print, and what learn wrote per axis: the level of what the twin
+cannot predict (σ_r, at rest) and its part growing with the commanded speed (k_v, σ = k_v·|v|). The conservative plan (the largest uniform scale of V and A whose run on the first
 print's plant keeps RMS γ ≤ (1 − η)·E_max) is the cycle time the loop must not exceed.
 
 Targets (issue 19): by the third print, within ≥ η and RMS γ ≤ (1 − η)·E_max, cycle ≤
@@ -60,6 +60,7 @@ class Round:
     compute_s: float
     pred_after_um: dict
     step_scale: dict
+    kv_ms: dict
 
 
 def fan_plant(prof, seed: int, axis: str, freq_hz: float, amp_mm: float, phase_rad: float,
@@ -93,9 +94,10 @@ def closed_loop(prof, path, *, rounds: int, seed: int, fan: tuple, tol: float, e
         pred = {r["axis"]: 1000 * r["prediction_rms_mm"]["before"] for r in recs}
         after = {r["axis"]: 1000 * r["prediction_rms_mm"]["after"] for r in recs}
         steps = {r["axis"]: r["step_scale"] for r in recs}
+        kv = {r["axis"]: 1000 * r.get("noise_per_speed_s", 0.0) for r in recs}
         learned = {r["axis"]: 1000 * r.get("noise_level_mm", float("nan")) for r in recs}
         r = Round(k, m.cycle_time_s, 1000 * m.rms_gamma_mm, m.within_fraction, pred, learned, dt,
-                  after, steps)
+                  after, steps, kv)
         out.append(r)
         if on_round:
             on_round(r)
@@ -129,13 +131,15 @@ def main(argv=None):
           f"per print), butterfly, V {a.vmax:g} mm/s, A {a.amax:g} mm/s², E_max {a.tolerance:g} mm, "
           f"η {a.eta:g}; conservative {cons_s:.3f} s (limits x {scale:.3f})")
     print(f"{'print':>5} {'cycle s':>8} {'RMS γ µm':>9} {'limit':>6} {'within':>7} "
-          f"{'pred x µm':>9} {'pred y µm':>9} {'level x µm':>10} {'level y µm':>10} {'plan s':>7}"
+          f"{'pred x µm':>9} {'pred y µm':>9} {'level x µm':>10} {'level y µm':>10} "
+          f"{'k_v x ms':>8} {'k_v y ms':>8} {'plan s':>7}"
           f"  learned step (prediction RMS after, µm)")
 
     def show(r):
         print(f"{r.k:5d} {r.cycle_s:8.3f} {r.rms_gamma_um:9.2f} {lim:6.2f} {r.within:7.4f} "
               f"{r.pred_rms_um.get('x', np.nan):9.1f} {r.pred_rms_um.get('y', np.nan):9.1f} "
-              f"{r.learned.get('x', np.nan):10.1f} {r.learned.get('y', np.nan):10.1f} {r.compute_s:7.2f}  "
+              f"{r.learned.get('x', np.nan):10.1f} {r.learned.get('y', np.nan):10.1f} "
+              f"{r.kv_ms.get('x', np.nan):8.3f} {r.kv_ms.get('y', np.nan):8.3f} {r.compute_s:7.2f}  "
               + ", ".join(f"{a} x{r.step_scale[a]:.2g} ({r.pred_after_um[a]:.1f})" for a in r.step_scale))
         sys.stdout.flush()
 

@@ -54,27 +54,40 @@ def open_loop_rms(twin, x_cmd, x_meas, warmup: int = 0) -> float:
     return float(np.sqrt(np.mean((mean[warmup:] - np.asarray(x_meas)[warmup:]) ** 2)))
 
 
-def unexplained_level_mm(twin, x_cmd, x_meas, warmup: int = 0) -> float:
-    """RMS of what ``twin`` cannot predict on a log open loop (as the optimizer predicts),
-    after the ``warmup`` samples: the residual measured − open-loop prediction, less the part
-    the profile's own spread explains (the plant draw, directions Y of the known uncertainty
-    with z ~ N(0, I), fitted by ridge least squares at the residual's own level: the next
-    print's twin still carries that spread in its interval, so counting it here would count it
-    twice). A fan, a disturbance no command explains, stays in it whatever its phase."""
+def unexplained_level(twin, x_cmd, x_meas, warmup: int = 0) -> tuple[float, float]:
+    """What ``twin`` cannot predict on a log open loop (as the optimizer predicts), after the
+    ``warmup`` samples, as (σ_r mm, k_v s): a variance σ_r² + k_v²·v² with v the commanded
+    speed of the axis.
+
+    The residual is measured − open-loop prediction, less the part the profile's own spread
+    explains (the plant draw, directions Y of the known uncertainty with z ~ N(0, I), fitted by
+    ridge least squares at the residual's own level: the next print's twin still carries that
+    spread in its interval, so counting it here would count it twice). Its squares are then
+    split by least squares (both terms ≥ 0) into a level that stays at rest — a fan, whatever
+    its phase — and one that grows with the speed — an unmodelled lag, whose error is
+    ≈ delay·v and vanishes at rest, so the optimizer can slow down for it."""
     from ..twin.features import factor_series
 
     x_cmd = np.asarray(x_cmd, float)
     mean, _ = dataclasses.replace(twin).run(x_cmd, None, learn=False)
     w0 = int(warmup)
     r = np.asarray(x_meas, float)[w0:] - mean[w0:]
-    if r.size == 0:
-        return 0.0
+    if r.size < 8:
+        return 0.0, 0.0
     Y = factor_series(twin.ir, x_cmd - x_cmd[0])[:, w0:]
     s2 = float(np.mean(r * r))
     if Y.shape[0] and s2 > 0.0:
         z = np.linalg.solve(Y @ Y.T + s2 * np.eye(Y.shape[0]), Y @ r)
         r = r - z @ Y
-    return float(np.sqrt(np.mean(r * r)))
+    v2 = (np.gradient(x_cmd) / twin.ir.ts_s)[w0:] ** 2
+    r2 = r * r
+    A = np.column_stack([np.ones_like(v2), v2])
+    (c0, c1), *_ = np.linalg.lstsq(A, r2, rcond=None)
+    if c1 <= 0.0 or not np.any(v2 > 0):
+        return float(np.sqrt(np.mean(r2))), 0.0
+    if c0 <= 0.0:
+        c0, c1 = 0.0, float(v2 @ r2 / (v2 @ v2))
+    return float(np.sqrt(c0)), float(np.sqrt(c1))
 
 
 def narrowed(ir, z, S):
@@ -106,7 +119,8 @@ def learn_axis(profile, axis: str, x_cmd, x_meas, *, source: str = "", sha: str 
     """(Prior, record) for one axis from one log's commanded/measured positions; the first
     ``warmup`` samples (a log that starts mid-motion, ``closedloop.logs``) are neither learned
     from nor scored."""
-    from ..twin.model import axis_twin, learned_draw, learned_noise_mm
+    from ..twin.model import (NOISE_FLOOR_MIN_MM, axis_twin, learned_draw, learned_noise_mm,
+                              learned_speed_noise_s)
     from ..twin.physics import axis_impulse
 
     twin = axis_twin(profile, axis, method="pidd")
@@ -157,16 +171,25 @@ def learn_axis(profile, axis: str, x_cmd, x_meas, *, source: str = "", sha: str 
     history = tuple(prior.learned_from) if prior is not None else ()
     # the level of what the learned twin still cannot predict on this log, averaged (in
     # variance) with what earlier logs measured: one print cannot talk it away
-    level_log = unexplained_level_mm(learned, x_cmd, x_meas, warmup)
+    # (a fan the profile's extensions already carry as variance is not counted twice)
+    from ..twin.extensions import extra_variance_mm2
+
+    level_log, kv_log = unexplained_level(learned, x_cmd, x_meas, warmup)
+    level_log = math.sqrt(max(level_log ** 2 - extra_variance_mm2(profile.axes[axis].effects),
+                              NOISE_FLOOR_MIN_MM ** 2))
     old_level = learned_noise_mm(prior)
-    level = level_log if old_level is None else math.sqrt(0.5 * (old_level ** 2 + level_log ** 2))
+    level, kv = level_log, kv_log
+    if old_level is not None:
+        level = math.sqrt(0.5 * (old_level ** 2 + level_log ** 2))
+        kv = math.sqrt(0.5 * (learned_speed_noise_s(prior) ** 2 + kv_log ** 2))
     rec = {"log": source, "sha256": sha, "samples": int(len(x_cmd)), "warmup_samples": int(warmup),
            "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
            "method": f"bounded Bayesian update (prediction change <= {MAX_PRED_CHANGE_MM:g} mm RMS, "
                      f"forget {FORGET:g})",
            "prediction_rms_mm": {"before": round(before, 6), "after": round(after, 6)},
            "step_sigmas": round(dist, 3), "step_scale": scale, "step_clipped": bool(clipped),
-           "noise_level_log_mm": round(level_log, 7), "noise_level_mm": round(level, 7)}
+           "noise_level_log_mm": round(level_log, 7), "noise_level_mm": round(level, 7),
+           "noise_per_speed_log_s": round(kv_log, 9), "noise_per_speed_s": round(kv, 9)}
     if draw is not None:
         rec["plant_draw"] = draw
     return Prior(mu=mu, cov=cov, learned_from=history + (rec,)), rec
@@ -174,15 +197,20 @@ def learn_axis(profile, axis: str, x_cmd, x_meas, *, source: str = "", sha: str 
 
 def learn_logs(profile, logs):
     """Profile with priors updated from each MotionLog in turn; returns (profile, records)."""
+    from ..twin.extensions import mean_offsets
+
     records = []
     for log in logs:
         sha = _sha(log.source) if os.path.exists(str(log.source)) else ""
         priors = dict(profile.twin.priors)
         w0 = int(getattr(log, "warmup", 0))
+        # what the profile's extensions (``diagnose -o``) already predict is taken off the
+        # measurements, as ``predict`` does: the twin learns what is left
+        off = mean_offsets(profile, log.cmd_mm[:, :2])
         for i, ax in enumerate(("x", "y")):
             if np.ptp(log.cmd_mm[w0:, i]) < 1.0:
                 continue
-            priors[ax], rec = learn_axis(profile, ax, log.cmd_mm[:, i], log.pos_mm[:, i],
+            priors[ax], rec = learn_axis(profile, ax, log.cmd_mm[:, i], log.pos_mm[:, i] - off[:, i],
                                          source=str(log.source), sha=sha, warmup=w0)
             records.append({"axis": ax, **rec})
         profile = dataclasses.replace(profile, twin=dataclasses.replace(profile.twin, priors=priors))

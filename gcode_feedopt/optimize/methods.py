@@ -121,17 +121,24 @@ def make_twin_predictor(profile, method: str, *, learn: bool):
     the physics (twin.model.twin_impulse: the profile's FRF population, narrowed to this
     machine once ``learn`` has seen its logs), the weight prior (twin.model.axis_prior) and,
     per axis, the level of what the twin cannot predict (twin.model.axis_noise_mm: what
-    ``learn`` measured on the machine's logs, the profile's σ_ε until then), which widens the
-    chance constraint by a disturbance the profile lacks (a fan)."""
-    from ..twin.model import axis_noise_mm, axis_prior, twin_impulse
+    ``learn`` measured on the machine's logs, the profile's σ_ε until then, plus the variance
+    of a fan ``diagnose -o`` wrote as an extension, twin.extensions.extra_variance_mm2) and
+    the part of it that grows with the commanded speed (twin.model.learned_speed_noise_s),
+    which widen the chance constraint by what the twin cannot predict. (The extensions'
+    deterministic terms, twin.extensions.mean_offsets, are not part of the predictor.)"""
+    from ..twin.extensions import extra_variance_mm2
+    from ..twin.model import axis_noise_mm, axis_prior, learned_speed_noise_s, twin_impulse
 
     tw = profile.twin
     irs = [twin_impulse(profile, ax, method=method) for ax in ("x", "y")]
     priors = [axis_prior(profile, ax, method=method) for ax in ("x", "y")]
-    s2 = [axis_noise_mm(profile, ax, method=method) ** 2 for ax in ("x", "y")]
+    s2 = [axis_noise_mm(profile, ax, method=method) ** 2
+          + extra_variance_mm2(profile.axes[ax].effects) for ax in ("x", "y")]
+    kv2 = [0.0 if method == "dd" else learned_speed_noise_s(tw.priors.get(ax)) ** 2
+           for ax in ("x", "y")]
     return TwinPredictor(irs, tw.n2, tw.n3, s2, [p[0] for p in priors],
                          [p[1] for p in priors], use_feature_var=(method != "dd"),
-                         learn=learn and method in ("dd", "pidd"))
+                         learn=learn and method in ("dd", "pidd"), speed_var=kv2)
 
 
 def _pieces(path, z_pieces: bool = True):

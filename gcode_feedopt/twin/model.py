@@ -288,6 +288,18 @@ def learned_noise_mm(prior) -> float | None:
     return None
 
 
+def learned_speed_noise_s(prior) -> float:
+    """k_v, s: the part of what the twin cannot predict that ``learn`` found to grow with the
+    axis's commanded speed v (σ = k_v·|v|: an unmodelled lag, which ``diagnose`` can name);
+    0 when nothing was learned."""
+    if prior is None:
+        return 0.0
+    for rec in reversed(tuple(prior.learned_from)):
+        if isinstance(rec, dict) and rec.get("noise_per_speed_s") is not None:
+            return float(rec["noise_per_speed_s"])
+    return 0.0
+
+
 def axis_noise_mm(profile, axis: str, *, method: str = "pidd") -> float:
     """σ of what the twin of one axis cannot predict, mm, as the optimizer and an offline
     prediction use it: the level ``learn`` measured on the machine's own logs when there is
