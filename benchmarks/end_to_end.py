@@ -23,9 +23,9 @@ and the plan's compute time:
   what the twin cannot predict, in place of the profile's σ_ε = 10 µm);
 - ``oracle``: the same optimizer knowing the plant exactly (the physical limit).
 
-and the targets: pidd ≤ 0.75 × conservative's cycle where the tolerance binds, RMS γ within
-(1 − η)·E_max, within ≥ η; where the tolerance does not bind (the kinematic plan already
-passes), pidd = kinematic.
+and the targets: pidd ≤ 0.75 × conservative's cycle where the tolerance binds (conservative
+scales the limits down), RMS γ within (1 − η)·E_max, within ≥ η; where the tolerance does not
+bind (the kinematic plan keeps every sample within E_max on the plant), pidd = kinematic.
 
     python benchmarks/end_to_end.py [--scenario butterfly-ender3pro,...] [--eta 0.9,0.95,0.99]
                                     [--seed 1] [--methods kinematic,conservative,pidd,oracle]
@@ -53,8 +53,8 @@ SCENARIOS = {
     "butterfly-benchA": ("benchA", "butterfly", 150.0, 5000.0, 0.05),
     "rose-ender3pro": ("ender3pro", "rose", 250.0, 8000.0, 0.1),
     "rose-benchA": ("benchA", "rose", 250.0, 8000.0, 0.1),
-    # the tolerance does not bind: the profile's own limits and E_max
-    "butterfly-ender3pro-loose": ("ender3pro", "butterfly", 70.0, 3000.0, 0.1),
+    # the tolerance does not bind: the profile's own limits, E_max 0.2 mm
+    "butterfly-ender3pro-loose": ("ender3pro", "butterfly", 70.0, 3000.0, 0.2),
 }
 METHODS = ("kinematic", "conservative", "pidd", "pidd+learned", "oracle")
 #: a method name with ``:window`` plans with the receding-window LP (optimize.mpc, the paper's
@@ -183,15 +183,15 @@ def _verdict(name, p, k, c, lim, eta):
     ok_w = p.within >= eta
     parts = [f"{name}: RMS γ {p.rms_gamma_um:.2f} ≤ {lim:.2f} µm: {'met' if ok_g else 'NOT met'}",
              f"within {p.within:.4f} ≥ {eta:g}: {'met' if ok_w else 'NOT met'}"]
-    if c is not None:
-        binds = c.info.get("conservative_scale", 1.0) < 1.0
-        if binds:
-            ratio = p.cycle_s / c.cycle_s
-            parts.append(f"/conservative {ratio:.3f} ≤ 0.75: {'met' if ratio <= 0.75 else 'NOT met'}")
-        elif k is not None:
-            same = abs(p.cycle_s - k.cycle_s) <= 0.5 * 0.002
-            parts.append(f"not binding (conservative x1): pidd = kinematic "
-                         f"{'met' if same else 'NOT met'} ({p.cycle_s:.3f} vs {k.cycle_s:.3f} s)")
+    if k is not None and k.within >= 1.0:
+        same = abs(p.cycle_s - k.cycle_s) <= 0.5 * 0.002
+        parts.append(f"not binding (kinematic all within): = kinematic "
+                     f"{'met' if same else 'NOT met'} ({p.cycle_s:.3f} vs {k.cycle_s:.3f} s)")
+    elif c is not None and c.info.get("conservative_scale", 1.0) < 1.0:
+        ratio = p.cycle_s / c.cycle_s
+        parts.append(f"/conservative {ratio:.3f} ≤ 0.75: {'met' if ratio <= 0.75 else 'NOT met'}")
+    elif c is not None:
+        parts.append("binds on a few samples only (conservative x1)")
     return "; ".join(parts)
 
 
