@@ -26,6 +26,30 @@ class LogError(FeedOptError):
     """A sensor log is malformed, truncated, from another machine, or has no motion."""
 
 
+class InputError(FeedOptError):
+    """An input file is missing, not a regular file, unreadable, or binary where text is due
+    (gcode_feedopt.inputs)."""
+
+
+class OutputError(FeedOptError):
+    """An output cannot be written: missing folder, not a regular file, the input itself,
+    read-only, full disk (gcode_feedopt.outputs)."""
+
+
+class UsageError(FeedOptError):
+    """An option value out of range or options that contradict each other."""
+
+
+class Interrupted(KeyboardInterrupt):
+    """SIGINT, SIGTERM or SIGHUP arrived (gcode_feedopt.procs); a KeyboardInterrupt, so the
+    same cleanup runs for all three and no ``except Exception`` swallows it. ``signum`` is the
+    signal; the CLI exits 128 + signum."""
+
+    def __init__(self, signum: int):
+        super().__init__(signum)
+        self.signum = signum
+
+
 class VerifyError(FeedOptError):
     """The output failed a safety check; nothing was written."""
 

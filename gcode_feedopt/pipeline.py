@@ -11,16 +11,20 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import AlreadyProcessedError, FeedOptError, GCodeError
+from .errors import AlreadyProcessedError, FeedOptError, GCodeError, UsageError
 from .gcode.path import build_path
 from .gcode.reader import gc_paused, read_file
-from .gcode.verify import atomic_write, verify
+from .gcode.verify import verify
 from .gcode.writer import write, write_trajectory_csv
 from .plan.kinematic import effective_limits, plan_kinematic, plan_trapezoids, writer_accel
+from .inputs import check_input
+from .outputs import check_outputs, output_file, output_path, write_bytes
 from .report import Report
 from .vm import firmware
 
 METHODS = ("kinematic", "conservative", "pb", "dd", "pidd", "oracle")
+#: file types --plot can write (matplotlib's format from the suffix)
+PLOT_SUFFIXES = (".png", ".pdf", ".svg")
 
 
 @dataclass
@@ -93,6 +97,36 @@ def input_time_s(path, profile, opts: Options, fw_limits=None) -> float:
     return tr.duration_s
 
 
+#: most samples a plan may have when --vmax/--amax lower the limits: every method keeps
+#: several arrays per Ts sample (the kinematic plan ~100 bytes a sample, measured on the
+#: Cura Benchy: 465 MB at 1.2 M samples, 1.04 GB at 6.2 M), so 3e7 (16.7 h at Ts = 2 ms) is
+#: ~3 GB. A file that is this long at the profile's own limits is planned as it is.
+MAX_PLAN_SAMPLES = 30_000_000
+
+
+def check_plan_size(path, profile, vmax_mm_s=None, amax_mm_s2=None, use_slicer_feed=False,
+                    fw_limits=None, where: str = "") -> float:
+    """Refuse --vmax/--amax values that would make the plan absurdly large (``--vmax 1e-6``
+    asked for 667 GiB): the time of the fastest plan under the lowered limits (firmware
+    trapezoids), in samples of Ts, must stay within MAX_PLAN_SAMPLES. Returns that time, s."""
+    if vmax_mm_s is None and amax_mm_s2 is None:
+        return float("nan")
+    vmax, axis_v, axis_a = effective_limits(profile, vmax_mm_s, amax_mm_s2)
+    tr = plan_trapezoids(path, vmax_mm_s=vmax, axis_vmax_mm_s=axis_v, axis_amax_mm_s2=axis_a,
+                         firmware=profile.firmware, use_slicer_feed=use_slicer_feed,
+                         fw_limits=fw_limits)
+    n = tr.duration_s / profile.ts_s
+    if n > MAX_PLAN_SAMPLES:
+        given = [(k, v) for k, v in (("--vmax", vmax_mm_s), ("--amax", amax_mm_s2))
+                 if v is not None]
+        opts = " and ".join(f"{k} {v:g}" for k, v in given)
+        raise UsageError(f"{where}: with {opts} the plan would last {tr.duration_s / 3600:.3g} h "
+                         f"= {n:.3g} samples of {profile.ts_s * 1000:g} ms, above the limit of "
+                         f"{MAX_PLAN_SAMPLES:.3g} (about 3 GB); raise "
+                         f"{' or '.join(k for k, _ in given)}")
+    return tr.duration_s
+
+
 def execute_check(out_program, profile, tol_mm: float) -> dict:
     """End to end: the written G-code run by the firmware model and the profile's nominal
     plant (no unknown effects): executed time and contour error, to set against the plan's
@@ -111,10 +145,29 @@ def execute_check(out_program, profile, tol_mm: float) -> dict:
             "rms_gamma_mm": round(m.rms_gamma_mm, 6)}
 
 
+def check_run_outputs(in_path, out_path, opts: Options, extra: dict | None = None,
+                      inputs=()) -> dict:
+    """Check the input and every output of a run before anything is read or written
+    (outputs.check_outputs); ``extra``: more option -> path (e.g. ``--report``)."""
+    in_path = check_input(in_path, "input")
+    # an in-place edit (no -o) names no option in its messages
+    key = "-o" if out_path is not None and pathlib.Path(out_path) != in_path else "output"
+    out_path = pathlib.Path(out_path) if out_path is not None else in_path
+    outs = {key: None if opts.dry_run else out_path,
+            "--trajectory": None if opts.dry_run else opts.trajectory,
+            "--plot": opts.plot, **(extra or {})}
+    targets = check_outputs(outs, inputs=[in_path, *inputs], in_place=[key],
+                            suffixes={"--plot": PLOT_SUFFIXES})
+    if key in targets:
+        targets["-o"] = targets.pop(key)
+    return targets
+
+
 def optimize_file(in_path, out_path, profile, opts: Options) -> Report:
     """Optimize ``in_path`` and write ``out_path`` (may be the same file: in place)."""
     in_path = pathlib.Path(in_path)
     out_path = pathlib.Path(out_path) if out_path is not None else in_path
+    targets = check_run_outputs(in_path, out_path, opts)
     wall = {}
     t0 = time.perf_counter()
     program = read_for(in_path, profile)
@@ -131,6 +184,8 @@ def optimize_file(in_path, out_path, profile, opts: Options) -> Report:
         raise GCodeError(f"{in_path}: no move travels in X, Y or Z; nothing to re-time")
     wall["path"] = time.perf_counter() - t0
     t0 = time.perf_counter()
+    check_plan_size(path, profile, opts.vmax_mm_s, opts.amax_mm_s2, opts.use_slicer_feed,
+                    fw_limits, where=str(in_path))
     sched = plan(path, profile, opts, fw_limits)
     t_in = input_time_s(path, profile, opts, fw_limits)
     wall["plan"] = time.perf_counter() - t0
@@ -163,20 +218,20 @@ def optimize_file(in_path, out_path, profile, opts: Options) -> Report:
         executed = execute_check(out_program, profile,
                                  opts.tolerance_mm or profile.limits.tolerance_mm)
         wall["execute"] = time.perf_counter() - t0
-    if not opts.dry_run:
-        t0 = time.perf_counter()
-        atomic_write(out_path, result.data)
-        if opts.trajectory:
-            tmp = pathlib.Path(opts.trajectory)
-            with open(tmp, "wb") as fh:
-                write_trajectory_csv(fh, sched, path)
-        wall["save"] = time.perf_counter() - t0
     if opts.plot:
         from .plot import plot_run
 
-        plot_run(path, sched, opts.plot, title=f"{in_path.name}: {sched.method} on {profile.name}",
-                 tolerance_mm=opts.tolerance_mm or profile.limits.tolerance_mm,
-                 predicted_error_mm=sched.info.get("predicted_bound_mm"))
+        with output_path(targets["--plot"]) as tmp:
+            plot_run(path, sched, tmp, title=f"{in_path.name}: {sched.method} on {profile.name}",
+                     tolerance_mm=opts.tolerance_mm or profile.limits.tolerance_mm,
+                     predicted_error_mm=sched.info.get("predicted_bound_mm"))
+    if not opts.dry_run:
+        t0 = time.perf_counter()
+        if opts.trajectory:  # first: the G-code is the last file replaced
+            with output_file(targets["--trajectory"]) as fh:
+                write_trajectory_csv(fh, sched, path)
+        write_bytes(targets["-o"], result.data)
+        wall["save"] = time.perf_counter() - t0
     info = sched.info
     rep = Report(
         input=str(in_path), output=None if opts.dry_run else str(out_path),
@@ -198,6 +253,10 @@ def optimize_file(in_path, out_path, profile, opts: Options) -> Report:
                                         "whole_file_checks", "samples_evaluated",
                                         "slowed_length_fraction", "compute_s", "solver_s")
                   if k in info}})
+    if program.lines and not program.lines[-1].endswith(b"\n"):
+        rep.notes.append(f"the last line ({len(program.lines)}) has no line end: if the file was "
+                         "cut short (an interrupted upload or copy), the print is incomplete; "
+                         "check its end")
     if fw_out > fw_in:
         rep.notes.append("the firmware runs the original faster than our output: the slicer's "
                          "feeds exceed the profile's limits somewhere (see --vmax)")

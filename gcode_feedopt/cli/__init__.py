@@ -13,6 +13,7 @@ on stderr and a non-zero exit here, in one place.
 from __future__ import annotations
 
 import importlib
+import os
 import sys
 import warnings
 
@@ -62,12 +63,89 @@ class FeedOptGroup(click.Group):
             args = [DEFAULT_COMMAND, *args]
         return super().parse_args(ctx, args)
 
+    def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True, **extra):
+        """click's main, with every error as one line ``gcode-feedopt: error: ...`` (usage
+        errors too, with where to find help) and exit code 2 for bad usage."""
+        if not standalone_mode:
+            return super().main(args, prog_name, complete_var, False, **extra)
+        try:
+            rv = super().main(args, prog_name, complete_var, False, **extra)
+        except click.UsageError as exc:
+            if type(exc).__name__ == "NoArgsIsHelpError":  # bare `gcode-feedopt`: the help
+                exc.show()
+                sys.exit(exc.exit_code)
+            msg = exc.format_message()
+            if exc.ctx is not None:
+                msg = f"{msg.rstrip('.')}; see '{exc.ctx.command_path} --help'"
+            _error(msg)
+            sys.exit(exc.exit_code)
+        except click.ClickException as exc:
+            _error(exc.format_message())
+            sys.exit(exc.exit_code)
+        except click.Abort as exc:  # Ctrl-C outside a command (while parsing)
+            signum = getattr(exc.__cause__, "signum", 2)
+            click.echo(f"gcode-feedopt: stopped by signal {signum}", err=True)
+            sys.exit(128 + signum)
+        except BrokenPipeError:  # `... --report - | head`: the reader went away
+            sys.stdout = open(os.devnull, "w")
+            sys.exit(141)
+        sys.exit(rv if isinstance(rv, int) else 0)
+
     def invoke(self, ctx):
         try:
             return super().invoke(ctx)
         except FeedOptError as exc:
-            click.echo(f"gcode-feedopt: error: {exc}", err=True)
+            _error(str(exc))
             ctx.exit(exc.exit_code)
+        except (click.exceptions.Exit, click.ClickException, click.Abort):
+            raise
+        except MemoryError:
+            _error("out of memory; the file is too long for this machine's memory: split it, "
+                   "or use --method kinematic (the smallest plan)")
+            ctx.exit(INTERNAL_EXIT)
+        except Exception as exc:  # a bug: one line and a way to see more, never a traceback
+            if os.environ.get("GCODE_FEEDOPT_TRACEBACK"):
+                raise
+            where = ""
+            tb = exc.__traceback__
+            while tb is not None:
+                where = f"{tb.tb_frame.f_code.co_filename.rsplit(os.sep, 1)[-1]}:{tb.tb_lineno}"
+                tb = tb.tb_next
+            _error(f"internal error ({type(exc).__name__} at {where}: {exc}); this is a bug: "
+                   "please report it with the command; GCODE_FEEDOPT_TRACEBACK=1 shows the "
+                   "traceback")
+            ctx.exit(INTERNAL_EXIT)
+        except KeyboardInterrupt as exc:  # Ctrl-C, SIGTERM, SIGHUP (procs.install_handlers)
+            from ..outputs import remove_temps
+            from ..procs import acknowledge, signal_name
+
+            acknowledge()
+            remove_temps()
+            signum = getattr(exc, "signum", 2)
+            click.echo(f"gcode-feedopt: stopped by {signal_name(signum)}; files not yet "
+                       "written are untouched, no temporary file is left", err=True)
+            ctx.exit(128 + signum)
+
+
+#: exit code of an internal error (a bug; BSD's EX_SOFTWARE), apart from bad input's 2
+INTERNAL_EXIT = 70
+#: longest error line; a longer message (a 10 MB token quoted back) keeps its start and end
+MAX_ERROR_CHARS = 300
+
+
+def one_line(message: str, limit: int = MAX_ERROR_CHARS) -> str:
+    """``message`` on one line of at most ``limit`` characters (the middle cut out: the start
+    says what and where, the end the fix)."""
+    text = " ".join(str(message).split())
+    if len(text) <= limit:
+        return text
+    head = (limit - 5) * 2 // 3
+    return f"{text[:head]} ... {text[-(limit - 5 - head):]}"
+
+
+def _error(message: str) -> None:
+    prefix = "gcode-feedopt: error: "
+    click.echo(prefix + one_line(message, MAX_ERROR_CHARS - len(prefix)), err=True)
 
 
 @click.group(cls=FeedOptGroup, context_settings={"help_option_names": ["-h", "--help"]})
@@ -91,4 +169,7 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
 def main(argv: list[str] | None = None) -> None:
     """Console-script entry point."""
     warnings.showwarning = _show_warning
+    from ..procs import install_handlers
+
+    install_handlers()
     cli.main(args=argv if argv is not None else sys.argv[1:], prog_name="gcode-feedopt")

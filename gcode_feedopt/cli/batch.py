@@ -9,6 +9,7 @@ import sys
 import click
 
 from ..pipeline import METHODS
+from .options import AMAX, STRINGENCY, TOLERANCE, VMAX
 
 
 @click.command("batch")
@@ -20,17 +21,26 @@ from ..pipeline import METHODS
 @click.option("--machine", "-m", required=True, help="Built-in profile or profile .yaml.")
 @click.option("--method", type=click.Choice(METHODS), default="pidd", show_default=True,
               help="As for optimize (pidd: the digital twin keeps the tolerance).")
-@click.option("--vmax", type=float, help="Override the feed limit, mm/s.")
-@click.option("--amax", type=float, help="Override the X/Y acceleration limit, mm/s².")
+@click.option("--tolerance", type=TOLERANCE, metavar="MM",
+              help="Contour-error tolerance E_max, mm (default: the profile's).")
+@click.option("--stringency", type=STRINGENCY, metavar="P",
+              help="Fraction of samples that must be within tolerance (default: the profile's).")
+@click.option("--vmax", type=VMAX, metavar="MM_S", help="Override the feed limit, mm/s.")
+@click.option("--amax", type=AMAX, metavar="MM_S2",
+              help="Override the X/Y acceleration limit, mm/s².")
+@click.option("--mode", type=click.Choice(["refeed", "sampled"]), default="refeed",
+              show_default=True, help="As for optimize.")
 @click.option("--use-slicer-feed", is_flag=True, help="Never faster than the slicer's F.")
 @click.option("--force", is_flag=True, help="Process files that were processed before.")
-def batch(folder, outdir, jobs, machine, method, vmax, amax, use_slicer_feed, force):
+def batch(folder, outdir, jobs, machine, method, tolerance, stringency, vmax, amax, mode,
+          use_slicer_feed, force):
     """Optimize every G-code file in FOLDER; print a summary table; exit 1 if any failed."""
     from ..hosts.batch import find_jobs, run_batch, table
     from ..profile import load_profile
 
     load_profile(machine)  # a bad machine fails once, here, not once per file
-    opts = {"method": method, "vmax_mm_s": vmax, "amax_mm_s2": amax,
+    opts = {"method": method, "tolerance_mm": tolerance, "stringency": stringency,
+            "vmax_mm_s": vmax, "amax_mm_s2": amax, "mode": mode,
             "use_slicer_feed": use_slicer_feed, "force": force}
     total = len(find_jobs(folder))
     done = [0]
@@ -41,11 +51,18 @@ def batch(folder, outdir, jobs, machine, method, vmax, amax, use_slicer_feed, fo
         if tty:
             click.echo(f"\r[{done[0]}/{total}] {r.file[:50]:50s}", err=True, nl=False)
 
-    results = run_batch(folder, outdir, machine, opts, jobs, progress)
+    results, signum = run_batch(folder, outdir, machine, opts, jobs, progress)
     if tty:
         click.echo("", err=True)
     click.echo(table(results))
     failed = [r for r in results if r.status == "failed"]
+    if signum is not None:
+        from ..procs import signal_name
+
+        stopped = sum(r.status == "interrupted" for r in results)
+        click.echo(f"gcode-feedopt: batch stopped by {signal_name(signum)}: {stopped} of "
+                   f"{len(results)} files not written (untouched), {len(failed)} failed", err=True)
+        sys.exit(128 + signum)
     if failed:
         click.echo(f"batch: {len(failed)} of {len(results)} failed", err=True)
         sys.exit(1)

@@ -3,12 +3,14 @@ seed; the paper's Table 1 columns as a table (and JSON), Fig. 12 as a PNG."""
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import time
 
 import click
 
+from .options import AMAX, SEED, STRINGENCY, TOLERANCE, VMAX
 from .simulate import _parse_effects
 
 COLUMNS = (("method", "method", "{}"), ("cycle_time_s", "cycle s", "{:.3f}"),
@@ -43,19 +45,19 @@ def format_table(rows) -> str:
 @click.option("--machine", "-m", required=True, help="Profile name (ender3pro, nomad3) or YAML path.")
 @click.option("--methods", default="kinematic,conservative,pb,dd,pidd,oracle", show_default=True,
               help="Comma-separated methods to run.")
-@click.option("--seed", type=int, default=0, show_default=True, help="Plant seed (same for all methods).")
+@click.option("--seed", type=SEED, default=0, show_default=True, help="Plant seed (same for all methods).")
 @click.option("--effect", "effects", multiple=True, callback=_parse_effects, metavar="SPEC",
               help="Unknown effect in the plant (repeatable), e.g. sinusoid:axis=x,amp_mm=0.05.")
 @click.option("--nominal/--drawn", default=True, show_default=True,
               help="Plant = the FRF set's mean response, or one seeded draw of it.")
-@click.option("--tolerance", type=click.FloatRange(min=0, min_open=True), default=None,
+@click.option("--tolerance", type=TOLERANCE, default=None,
               help="E_max, mm (default: the profile's).")
-@click.option("--stringency", type=click.FloatRange(0.5, 1.0, max_open=True), default=None,
+@click.option("--stringency", type=STRINGENCY, default=None,
               help="η (default: the profile's).")
-@click.option("--vmax", type=click.FloatRange(min=0, min_open=True), default=None, help="V_max, mm/s.")
-@click.option("--amax", type=click.FloatRange(min=0, min_open=True), default=None, help="A_max, mm/s².")
+@click.option("--vmax", type=VMAX, default=None, help="V_max, mm/s.")
+@click.option("--amax", type=AMAX, default=None, help="A_max, mm/s².")
 @click.option("--offline", is_flag=True, help="Do not learn between windows (dd/pidd keep their priors).")
-@click.option("--json", "json_path", type=click.Path(dir_okay=False), help="Write the rows as JSON.")
+@click.option("--json", "json_path", type=click.Path(dir_okay=False), help="Write the rows as JSON ('-' for stdout).")
 @click.option("--plot", "png", type=click.Path(dir_okay=False),
               help="Write the paper's Fig. 12: feed, acceleration, contour error, γ, prediction error.")
 def compare(gcode, machine, methods, seed, effects, nominal, tolerance, stringency, vmax, amax,
@@ -70,37 +72,44 @@ def compare(gcode, machine, methods, seed, effects, nominal, tolerance, stringen
     """
     from pathlib import Path
 
-    from ..errors import FeedOptError
     from ..optimize import METHODS
     from ..optimize.compare import run_compare
-    from ..pipeline import path_for, read_for
+    from ..inputs import check_input
+    from ..outputs import check_outputs, output_file, output_path
+    from ..pipeline import PLOT_SUFFIXES, check_plan_size, path_for, read_for
     from ..profile import load_profile
     from ..vm.plant import Plant
+    from .options import profile_files
 
     chosen = [m.strip() for m in methods.split(",") if m.strip()]
     bad = [m for m in chosen if m not in METHODS]
-    if bad:
-        raise click.UsageError(f"--methods: unknown {', '.join(bad)}; use some of {', '.join(METHODS)}")
-    try:
-        profile = load_profile(machine)
-        tol = tolerance or profile.limits.tolerance_mm
-        eta = stringency or profile.limits.stringency
-        path = path_for(read_for(Path(gcode), profile), profile)
-        plant = Plant(profile, seed=seed, effects=effects, nominal=nominal)
-        t0 = time.perf_counter()
-        runs = run_compare(path, profile, plant, methods=chosen, tolerance_mm=tol,
-                           stringency=eta, vmax_mm_s=vmax, amax_mm_s2=amax, online=not offline)
-    except FeedOptError as exc:
-        raise click.ClickException(str(exc)) from None
+    if bad or not chosen:
+        raise click.BadParameter(f"unknown {', '.join(bad)}; use some of {', '.join(METHODS)}"
+                                 if bad else f"no method given; use some of {', '.join(METHODS)}",
+                                 param_hint="'--methods'")
+    profile = load_profile(machine)
+    check_input(gcode)
+    targets = check_outputs({"--json": json_path, "--plot": png},
+                            inputs=[gcode, *profile_files(machine)],
+                            suffixes={"--plot": PLOT_SUFFIXES})
+    tol = tolerance or profile.limits.tolerance_mm
+    eta = stringency or profile.limits.stringency
+    path = path_for(read_for(Path(gcode), profile), profile)
+    check_plan_size(path, profile, vmax, amax, where=str(gcode))
+    plant = Plant(profile, seed=seed, effects=effects, nominal=nominal)
+    t0 = time.perf_counter()
+    runs = run_compare(path, profile, plant, methods=chosen, tolerance_mm=tol,
+                       stringency=eta, vmax_mm_s=vmax, amax_mm_s2=amax, online=not offline)
     rows = [r.row() for r in runs]
-    click.echo(f"{os.path.basename(gcode)} on {profile.name} ({'nominal' if nominal else 'drawn'} plant, "
+    say = functools.partial(click.echo, err=json_path == "-")  # keep stdout pure JSON then
+    say(f"{os.path.basename(gcode)} on {profile.name} ({'nominal' if nominal else 'drawn'} plant, "
                f"seed {seed}; E_max {tol} mm, η {eta}"
                + (", effects: " + " ".join(e.to_spec() for e in effects) if effects else "")
                + f"; {'offline' if offline else 'online learning'})")
-    click.echo(format_table(rows))
-    click.echo(f"total {time.perf_counter() - t0:.1f} s")
+    say(format_table(rows))
+    say(f"total {time.perf_counter() - t0:.1f} s")
     if json_path:
-        with open(json_path, "w", encoding="utf-8") as fh:
+        with output_file(targets["--json"], text=True) as fh:
             json.dump({"file": os.fspath(gcode), "machine": profile.name, "seed": seed,
                        "plant": "nominal" if nominal else "draw", "tolerance_mm": tol,
                        "stringency": eta, "effects": [e.to_dict() for e in effects],
@@ -109,5 +118,6 @@ def compare(gcode, machine, methods, seed, effects, nominal, tolerance, stringen
     if png:
         from ..plot import plot_compare
 
-        plot_compare(runs, png, tolerance_mm=tol,
-                     title=f"{os.path.basename(gcode)} on {profile.name}, η {eta}")
+        with output_path(targets["--plot"]) as tmp:
+            plot_compare(runs, tmp, tolerance_mm=tol,
+                         title=f"{os.path.basename(gcode)} on {profile.name}, η {eta}")

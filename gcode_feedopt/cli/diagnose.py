@@ -7,6 +7,8 @@ import json
 
 import click
 
+from .options import Bounded
+
 
 @click.command("diagnose")
 @click.argument("log_path", metavar="LOG", type=click.Path(exists=True, dir_okay=False))
@@ -15,7 +17,7 @@ import click
               help="Write the diagnosis as JSON here ('-' for stdout).")
 @click.option("--plot", "plot_path", type=click.Path(dir_okay=False),
               help="PNG of the residual before/after and its spectrum.")
-@click.option("--fit-fraction", type=click.FloatRange(0.1, 0.9), default=0.6, show_default=True,
+@click.option("--fit-fraction", type=Bounded("fit_fraction"), default=0.6, show_default=True,
               help="Fraction of the log (from its start) the extension is fitted on; the rest is held out.")
 @click.option("--output", "-o", "out_profile", type=click.Path(dir_okay=False),
               help="Write the extended profile here (YAML): every named effect with its fitted "
@@ -34,7 +36,20 @@ def diagnose(log_path, machine, json_path, plot_path, fit_fraction, out_profile,
     from ..closedloop.logs import load_log
     from ..profile import load_profile
 
+    from ..inputs import check_input
+    from ..outputs import check_outputs, output_path, write_text
+    from ..pipeline import PLOT_SUFFIXES
+    from ..profile.io import check_profile_output
+    from .options import profile_files
+
     profile = load_profile(machine)
+    check_input(log_path)
+    inputs = [log_path, *profile_files(machine)]
+    targets = check_outputs({"--json": json_path, "--plot": plot_path, "-o": out_profile},
+                            inputs=inputs, suffixes={"--plot": PLOT_SUFFIXES,
+                                                     "-o": (".yaml", ".yml")})
+    if out_profile:
+        check_profile_output(out_profile, "-o", inputs)
     log = load_log(log_path, profile, raw_axis=raw_axis)
     d = diagnose_log(log, profile, fit_fraction=fit_fraction)
     out = d.to_dict()
@@ -63,8 +78,7 @@ def diagnose(log_path, machine, json_path, plot_path, fit_fraction, out_profile,
         if json_path == "-":
             click.echo(text)
         else:
-            with open(json_path, "w") as f:
-                f.write(text + "\n")
+            write_text(targets["--json"], text + "\n")
     if out_profile:
         import dataclasses
 
@@ -78,4 +92,5 @@ def diagnose(log_path, machine, json_path, plot_path, fit_fraction, out_profile,
     if plot_path:
         from ..closedloop.diagnose_plot import plot_diagnosis
 
-        plot_diagnosis(plot_path, d, log.ts_s, title=str(log_path))
+        with output_path(targets["--plot"]) as tmp:
+            plot_diagnosis(tmp, d, log.ts_s, title=str(log_path))

@@ -21,8 +21,13 @@ from ..identify.excitation import GENERATORS
 from ..identify.raw import analyse_raw, frf_rows
 from ..identify.readers import detect_kind, read_frf, read_raw, read_spectra, read_uff58
 from ..identify.spectra import BAND_HZ, FREQ_SPREAD, GRID_HZ, ZETA_SPREAD, fit_spectrum, widened_frf_set
+from ..inputs import check_input
+from ..outputs import check_outputs, output_path
+from ..pipeline import PLOT_SUFFIXES
 from ..profile import load_profile, save_profile
+from ..profile.io import check_profile_output
 from ..profile.schema import AxisModel, FRFSet, Mode
+from .options import Bounded, profile_files
 
 #: a fit whose log-magnitude RMS residual exceeds this is flagged as poor
 POOR_FIT_RMS = 0.5
@@ -130,13 +135,17 @@ def _identify_axis(axis: str, files, n_modes: int, excitation=None, n_sets: int 
 @click.option("--excitation", type=click.Choice(["auto", "legacy", "current"]), default="auto",
               show_default=True, help="Klipper resonance-test generator behind raw recordings "
               "(legacy: v0.12 and earlier; current: v0.13+); auto detects it from the data")
-@click.option("--freq-start", type=float, default=None, help="raw: FREQ_START of the test, Hz")
-@click.option("--freq-end", type=float, default=None, help="raw: FREQ_END of the test, Hz")
-@click.option("--hz-per-sec", type=float, default=None, help="raw: HZ_PER_SEC of the test")
-@click.option("--accel-per-hz", type=float, default=None, help="raw: ACCEL_PER_HZ, mm/s^2 per Hz")
-@click.option("--sweeping-accel", type=float, default=None,
+@click.option("--freq-start", type=Bounded("freq_hz"), default=None,
+              help="raw: FREQ_START of the test, Hz")
+@click.option("--freq-end", type=Bounded("freq_hz"), default=None,
+              help="raw: FREQ_END of the test, Hz")
+@click.option("--hz-per-sec", type=Bounded("hz_per_sec"), default=None,
+              help="raw: HZ_PER_SEC of the test")
+@click.option("--accel-per-hz", type=Bounded("accel_per_hz"), default=None,
+              help="raw: ACCEL_PER_HZ, mm/s^2 per Hz")
+@click.option("--sweeping-accel", type=Bounded("sweeping_accel"), default=None,
               help="raw, current generator: SWEEPING_ACCEL, mm/s^2")
-@click.option("--sweeping-period", type=float, default=None,
+@click.option("--sweeping-period", type=Bounded("sweeping_period"), default=None,
               help="raw, current generator: SWEEPING_PERIOD, s (0 = no sweeping)")
 @click.option("--segments", type=click.IntRange(2, 16), default=4, show_default=True,
               help="raw: FRFs per recording (interleaved window subsets, the spread)")
@@ -153,6 +162,9 @@ def identify(x_files, y_files, base, n_modes, output, plot_path, excitation, fre
     overrides = dict(freq_start_hz=freq_start, freq_end_hz=freq_end, hz_per_sec=hz_per_sec,
                      accel_per_hz=accel_per_hz, sweeping_accel_mm_s2=sweeping_accel,
                      sweeping_period_s=sweeping_period)
+    if freq_start is not None and freq_end is not None and freq_end < freq_start:
+        raise click.BadParameter(f"{freq_end:g} Hz is below --freq-start {freq_start:g} Hz; "
+                                 "give FREQ_END >= FREQ_START", param_hint="'--freq-end'")
     ex = None
     if excitation != "auto":
         ex = GENERATORS[excitation].with_overrides(**overrides)
@@ -160,6 +172,12 @@ def identify(x_files, y_files, base, n_modes, output, plot_path, excitation, fre
         raise click.UsageError("--freq-start/--freq-end/--hz-per-sec/--accel-per-hz/--sweeping-* "
                                "need --excitation legacy or current")
     base_p = load_profile(base)
+    inputs = [*x_files, *y_files, *profile_files(base)]
+    for f in inputs:
+        check_input(f)
+    check_profile_output(output, "-o", inputs)
+    plot_t = check_outputs({"-o": output, "--plot": plot_path}, inputs=inputs,
+                           suffixes={"-o": (".yaml", ".yml"), "--plot": PLOT_SUFFIXES}).get("--plot")
     axes = dict(base_p.axes)
     panels = {}
     for axis, files in (("x", x_files), ("y", y_files)):
@@ -175,13 +193,11 @@ def identify(x_files, y_files, base, n_modes, output, plot_path, excitation, fre
     out = pathlib.Path(output)
     new = dataclasses.replace(base_p, name=out.stem, axes=axes, provenance=prov, twin=twin,
                               source_path=None)
-    try:
-        save_profile(new, out)
-    except OSError as exc:
-        raise ProfileError(f"{out}: cannot write ({exc.strerror})") from None
+    save_profile(new, out)
     click.echo(f"wrote {out}")
     if plot_path:
         from ..identify.identify_plot import plot_fits
 
-        plot_fits(plot_path, panels)
+        with output_path(plot_t) as tmp:
+            plot_fits(tmp, panels)
         click.echo(f"wrote {plot_path}")

@@ -25,7 +25,14 @@ def learn(logs, machine, out_path, skip_bad):
     from ..profile import load_profile
     from ..profile.io import save_profile
 
+    from ..inputs import check_input
+    from ..profile.io import check_profile_output
+    from .options import profile_files
+
     profile = load_profile(machine)
+    for path in logs:
+        check_input(path)
+    check_profile_output(out_path, "-o", [*logs, *profile_files(machine)])
     n_ok = 0
     for path in logs:
         try:

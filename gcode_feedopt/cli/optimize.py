@@ -10,6 +10,7 @@ import click
 from ..errors import FeedOptError
 from ..pipeline import METHODS, Options, optimize_file
 from ..profile import load_profile
+from .options import AMAX, STRINGENCY, TOLERANCE, VMAX, profile_files
 
 
 @click.command("optimize")
@@ -23,13 +24,13 @@ from ..profile import load_profile
                    "kinematic: the firmware's limits only (fastest, no error model); "
                    "pb: the twin's physics alone; conservative: uniform limits lowered until "
                    "the profile's nominal machine holds the tolerance.")
-@click.option("--tolerance", type=click.FloatRange(min=0, min_open=True), metavar="MM",
+@click.option("--tolerance", type=TOLERANCE, metavar="MM",
               help="Contour-error tolerance E_max, mm (default: the profile's).")
-@click.option("--stringency", type=click.FloatRange(0.5, 0.9999), metavar="P",
+@click.option("--stringency", type=STRINGENCY, metavar="P",
               help="Fraction of samples that must be within tolerance (default: the profile's).")
-@click.option("--vmax", type=click.FloatRange(min=0, min_open=True), metavar="MM_S",
+@click.option("--vmax", type=VMAX, metavar="MM_S",
               help="Override the profile's feed limit, mm/s.")
-@click.option("--amax", type=click.FloatRange(min=0, min_open=True), metavar="MM_S2",
+@click.option("--amax", type=AMAX, metavar="MM_S2",
               help="Override the profile's X/Y acceleration limit, mm/s².")
 @click.option("--mode", type=click.Choice(["refeed", "sampled"]), default="refeed", show_default=True,
               help="refeed: the original moves with new F values; sampled: one G1 per Ts.")
@@ -38,7 +39,7 @@ from ..profile import load_profile
 @click.option("--trajectory", type=click.Path(dir_okay=False), metavar="CSV",
               help="Also write the planned trajectory t,x,y,z,e (s, mm), one row per Ts.")
 @click.option("--report", "report_path", type=click.Path(dir_okay=False), metavar="JSON",
-              help="Write the run's figures as JSON.")
+              help="Write the run's figures as JSON ('-' for stdout).")
 @click.option("--plot", "plot_path", type=click.Path(dir_okay=False), metavar="PNG",
               help="Write a PNG: XY path coloured by speed, feed along the print.")
 @click.option("--dry-run", is_flag=True, help="Plan and report, write nothing.")
@@ -64,21 +65,27 @@ def optimize(gcode, output, machine, method, tolerance, stringency, vmax, amax, 
 def _run(gcode, output, machine, method, tolerance, stringency, vmax, amax, mode,
          use_slicer_feed, trajectory, report_path, plot_path, dry_run, force, quiet, in_slicer):
     from ..hosts import prusaslicer
+    from ..outputs import write_text
+    from ..pipeline import check_run_outputs
 
-    profile = load_profile(machine)
     opts = Options(method=method, tolerance_mm=tolerance, stringency=stringency, vmax_mm_s=vmax,
                    amax_mm_s2=amax, mode=mode, use_slicer_feed=use_slicer_feed, force=force,
                    dry_run=dry_run, trajectory=trajectory, plot=plot_path)
-    if not gcode.is_file():
-        raise FeedOptError(f"{gcode}: no such file; check the path")
+    profile = load_profile(machine)
+    # every output checked before anything is read, planned or written
+    targets = check_run_outputs(gcode, output, opts, {"--report": report_path},
+                                inputs=profile_files(machine))
     rep = optimize_file(gcode, output, profile, opts)
     if in_slicer:
         rep.notes.extend(prusaslicer.limit_disagreements(profile))
         name = prusaslicer.output_name()
         if name:
             rep.extra["slicer_output_name"] = name
-    if report_path:
-        pathlib.Path(report_path).write_text(rep.to_json())
+    if report_path == "-":
+        click.echo(rep.to_json())
+    elif report_path:
+        write_text(targets["--report"], rep.to_json() + "\n")
     if not quiet:
         click.echo(rep.summary(), err=True)
     sys.stderr.flush()
+

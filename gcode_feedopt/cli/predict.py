@@ -19,14 +19,18 @@ from ..errors import LogError, LogWarning
 from ..profile import load_profile
 
 
+#: largest |value| in a log: positions in mm (a 10 m machine is 1e4) and times in s (a week
+#: is 6e5)
+MAX_LOG_ABS = 1e7
+
+
 def read_log_columns(path: pathlib.Path, ts_s: float):
     """t, x_cmd, y_cmd and (if present) x, y from a log; refuses malformed logs. A plan from
     ``optimize --trajectory`` (header ``t,x,y,z,e``) gives its x, y as the commands."""
-    try:
-        with open(path, "rb") as fh:
-            header = fh.readline().decode("ascii", "replace").strip()
-    except FileNotFoundError:
-        raise LogError(f"{path}: no such file; check the path") from None
+    from ..inputs import read_text
+
+    lines = read_text(path, "a log (t,x_cmd,y_cmd[,x,y])", LogError).splitlines()
+    header = lines[0].strip() if lines else ""
     cols = [c.strip() for c in header.split(",")]
     planned = cols == ["t", "x", "y", "z", "e"]
     for need in ("t", "x_cmd", "y_cmd"):
@@ -34,15 +38,27 @@ def read_log_columns(path: pathlib.Path, ts_s: float):
             raise LogError(f"{path}:1: column '{need}' missing; a log starts with the header "
                            "t,x_cmd,y_cmd[,x,y] (s, mm), a plan (optimize --trajectory) with "
                            "t,x,y,z,e")
+    if len([ln for ln in lines[1:] if ln.strip()]) < 10:
+        raise LogError(f"{path}: only {max(len(lines) - 1, 0)} rows; a log needs at least 10 "
+                       "samples")
     try:
-        data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+        data = np.loadtxt(lines[1:], delimiter=",", ndmin=2)
     except ValueError as exc:
-        raise LogError(f"{path}: a row is not {len(cols)} numbers ({exc}); fix or re-export the log") from None
+        raise LogError(f"{path}: a row is not {len(cols)} numbers "
+                       f"({' '.join(str(exc).split())[:120]}); fix or re-export the log") from None
     if data.shape[0] < 10:
         raise LogError(f"{path}: only {data.shape[0]} rows; a log needs at least 10 samples")
     if not np.all(np.isfinite(data)):
         row = int(np.argwhere(~np.isfinite(data))[0, 0]) + 2
         raise LogError(f"{path}:{row}: not a finite number; fix the row or cut the log there")
+    if data.shape[1] != len(cols):
+        raise LogError(f"{path}: rows have {data.shape[1]} numbers, the header names "
+                       f"{len(cols)} columns; fix the header or re-export the log")
+    big = np.abs(data) > MAX_LOG_ABS
+    if big.any():  # 1e308 passed as finite and the twin wrote thousands of rows of nan
+        row = int(np.argwhere(big)[0, 0]) + 2
+        raise LogError(f"{path}:{row}: value beyond ±{MAX_LOG_ABS:g} (mm, s); fix the row or "
+                       "cut the log there")
     t = data[:, cols.index("t")]
     dt = np.diff(t)
     ts = float(np.median(dt))
@@ -63,7 +79,7 @@ def read_log_columns(path: pathlib.Path, ts_s: float):
 @click.argument("log", type=click.Path(dir_okay=False, path_type=pathlib.Path))
 @click.option("--machine", "-m", required=True, help="Built-in profile or profile .yaml.")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, path_type=pathlib.Path),
-              help="Write t,x_mean,x_std,y_mean,y_std here.")
+              help="Write t,x_mean,x_std,y_mean,y_std here ('-' for stdout).")
 @click.option("--no-learn", is_flag=True, help="Do not learn from the measured columns.")
 def predict(log, machine, output, no_learn):
     """Predict the actual X/Y positions of LOG's commanded motion with the twin, learning online
@@ -71,10 +87,15 @@ def predict(log, machine, output, no_learn):
     a plan written by `optimize --trajectory` (t,x,y,z,e). A profile's extensions written by
     `diagnose -o` are part of the prediction (docs/diagnose.md)."""
     from ..closedloop.logs import edge_speeds_mm_s, log_warmup
+    from ..inputs import check_input
+    from ..outputs import check_outputs, output_file
     from ..twin.extensions import extra_variance_mm2, mean_offsets
     from ..twin.model import axis_twin
+    from .options import profile_files
 
     prof = load_profile(machine)
+    check_input(log)
+    target = check_outputs({"-o": output}, inputs=[log, *profile_files(machine)])["-o"]
     t, xc, yc, xm, ym = read_log_columns(log, prof.ts_s)
     cmd_xy = np.column_stack([xc, yc])
     w0 = log_warmup(cmd_xy, prof.ts_s, prof)
@@ -100,7 +121,7 @@ def predict(log, machine, output, no_learn):
             summary.append(f"{axis} RMS {np.sqrt(np.mean(r * r)) * 1e3:.2f} µm, 95 % interval "
                            f"holds {inside:.1%}")
     arr = np.column_stack(out)
-    with open(output, "w") as fh:
+    with output_file(target, text=True) as fh:
         fh.write("t,x_mean,x_std,y_mean,y_std\n")
         np.savetxt(fh, arr, fmt=["%.6f", "%.6f", "%.6f", "%.6f", "%.6f"], delimiter=",")
     click.echo(f"predict: {len(t)} samples -> {output}", err=True)

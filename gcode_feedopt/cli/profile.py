@@ -10,6 +10,8 @@ import click
 
 from ..profile import load_profile, save_profile
 from ..profile.build import build_from_frfs
+from ..profile.io import check_profile_output
+from .options import profile_files
 
 
 @click.group("profile")
@@ -60,7 +62,9 @@ def build(args):
     output = pathlib.Path(o["output"])
     if not frf_x and not frf_y:
         raise click.UsageError("give --frf-x and/or --frf-y files")
-    new, lines = build_from_frfs(load_profile(base), {"x": frf_x, "y": frf_y},
+    base_p = load_profile(base)
+    check_profile_output(output, "-o", [*frf_x, *frf_y, *profile_files(base)])
+    new, lines = build_from_frfs(base_p, {"x": frf_x, "y": frf_y},
                                  name=name or output.stem)
     for line in lines:
         click.echo(f"profile build: {line}", err=True)

@@ -181,6 +181,9 @@ def check_binary(data: bytes, name: str) -> None:
     if b"\x00" in head:
         raise GCodeError(f"{name}: contains NUL bytes, so it is not a text G-code file; "
                          "pass the slicer's .gcode output")
+    if b"\n" not in data and b"\r" in data.rstrip(b"\r"):
+        raise GCodeError(f"{name}: lines end in CR only (classic Mac OS); no firmware reads "
+                         "that; convert the line ends to LF (e.g. `tr '\\r' '\\n'`)")
 
 
 def _decode(line: bytes) -> str:
@@ -487,6 +490,10 @@ def _read_program(data: bytes, name: str, *, flavour: str, g91_relative_e: bool,
         if "E" in params:
             v = _f(params["E"], name, i, "E")
             e1 = e0 + v if erel else v + st.off[3]
+            if abs(e1 - e0) > ABSURD_MM:  # G92 E1e10 then E2: an E-only move of 1e10 mm
+                raise GCodeError(f"{name}:{i + 1}: E{params['E']} moves {e1 - e0:.6g} mm of "
+                                 f"filament in one move, beyond ±{ABSURD_MM:g} mm; check E and "
+                                 "G92 E")
         else:
             e1 = e0
         if st.feed_mm_s <= 0:
@@ -526,8 +533,41 @@ def _read_program(data: bytes, name: str, *, flavour: str, g91_relative_e: bool,
         if mv.feed_mm_s <= 0:
             raise GCodeError(f"{name}:{mv.line_no + 1}: move without any feed rate (no F before "
                              "it); add an F word to the first move")
+    check_limit_events(events, name)
     return Program(name=name, lines=lines, moves=moves, events=events, flavour=flavour,
                    processed_line=processed)
+
+
+#: limit-setting commands: parameter -> (lowest, highest) accepted value. An acceleration or
+#: feed limit of 0 stalls a firmware and divided by zero in the firmware model (M204 S0 ran
+#: into NaN); negative jerk or junction deviation means nothing.
+LIMIT_PARAMS = {
+    "M201": ({"X", "Y", "Z", "E"}, 1e-3, 1e7),
+    "M203": ({"X", "Y", "Z", "E"}, 1e-3, 1e6),
+    "M204": ({"S", "P", "T", "R"}, 1e-3, 1e7),
+    "M205": ({"X", "Y", "Z", "E", "J"}, 0.0, 1e4),
+    "SET_VELOCITY_LIMIT": ({"VELOCITY", "ACCEL", "ACCEL_TO_DECEL"}, 1e-3, 1e7),
+}
+#: longest G4 dwell accepted, s (the time estimates sample the whole print)
+MAX_DWELL_S = 86_400.0
+
+
+def check_limit_events(events, name: str) -> None:
+    """Refuse limit commands the firmware cannot run (M204 S0, M205 X-1, SET_VELOCITY_LIMIT
+    ACCEL=0, ...) and dwells longer than a day, naming the line."""
+    for ev in events:
+        if ev.name == "G4" and ev.dwell_s > MAX_DWELL_S:
+            raise GCodeError(f"{name}:{ev.line_no + 1}: G4 dwell of {ev.dwell_s:.6g} s is longer "
+                             f"than {MAX_DWELL_S:g} s (a day); fix the line")
+        spec = LIMIT_PARAMS.get(ev.name)
+        if spec is None:
+            continue
+        keys, lo, hi = spec
+        for k, v in ev.params.items():
+            if k in keys and isinstance(v, float) and not (lo <= v <= hi):
+                raise GCodeError(f"{name}:{ev.line_no + 1}: {ev.name} {k}{'=' if '_' in ev.name else ''}"
+                                 f"{v:g} is outside {lo:g} to {hi:g}; no firmware runs that, fix "
+                                 "the line")
 
 
 _MOVE_FIELDS = tuple(f.name for f in fields(Move))
@@ -590,6 +630,9 @@ def _arc(start, target, params, cw: bool, name: str, i: int) -> Arc:
             sweep += 2 * math.pi
         if math.hypot(x1 - x0, y1 - y0) > D_EPS_MM and sweep > 2 * math.pi - 1e-12:
             sweep -= 2 * math.pi
+    if r0 > ABSURD_MM:
+        raise GCodeError(f"{name}:{i + 1}: arc radius {r0:.6g} mm is beyond {ABSURD_MM:g} mm; "
+                         "check I/J/R and the units")
     return Arc(center_mm=(cx, cy), cw=cw, sweep_rad=sweep, radius_mm=r0)
 
 

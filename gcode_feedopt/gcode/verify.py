@@ -16,9 +16,7 @@ Any failure raises VerifyError and nothing is written.
 
 from __future__ import annotations
 
-import os
 import pathlib
-import tempfile
 
 from ..errors import VerifyError
 from .reader import Program, read_program, split_lines
@@ -107,25 +105,8 @@ def verify(program: Program, result: WriteResult, *, flavour: str, g91_relative_
 
 
 def atomic_write(target: pathlib.Path, data: bytes) -> None:
-    """Write ``data`` to a temporary file beside ``target``, then os.replace it.
+    """Write ``data`` to ``target`` through a temporary file and os.replace
+    (gcode_feedopt.outputs.write_bytes: the one safe-write path)."""
+    from ..outputs import write_bytes
 
-    The temporary file is removed on any failure (including KeyboardInterrupt)."""
-    target = pathlib.Path(target)
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        try:
-            st = os.stat(target)
-            os.chmod(tmp, st.st_mode & 0o7777)
-        except FileNotFoundError:
-            pass
-        os.replace(tmp, target)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
+    write_bytes(target, data)

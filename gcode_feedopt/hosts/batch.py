@@ -1,10 +1,10 @@
 """Batch over a folder of jobs: every G-code file, in parallel processes; one failure never
-stops the others; Ctrl-C leaves no half-written file (each write is temp + os.replace, and the
-temp is removed on any exception)."""
+stops the others; Ctrl-C or SIGTERM stops the workers at once and leaves no half-written file
+(each write is temp + os.replace, the temp removed on any exception or SIGTERM), starts no
+queued job, and the table still says which files were done."""
 
 from __future__ import annotations
 
-import concurrent.futures as cf
 import os
 import pathlib
 from dataclasses import dataclass
@@ -18,7 +18,7 @@ SUFFIXES = (".gcode", ".gco", ".g")
 @dataclass
 class JobResult:
     file: str
-    status: str  # ok | skipped | failed
+    status: str  # ok | skipped | failed | interrupted
     input_time_s: float | None = None
     output_time_s: float | None = None
     message: str = ""
@@ -60,31 +60,68 @@ def run_one(src: str, dst: str, machine: str, opts_dict: dict) -> JobResult:
         return JobResult(src_p.name, "failed", message=f"internal error: {exc!r}")
 
 
+def _written_since(dst: pathlib.Path, before) -> bool:
+    """Did a job replace ``dst`` with a processed file after ``before`` (its stat or None)?"""
+    try:
+        st = dst.stat()
+    except OSError:
+        return False
+    if before is not None and (st.st_ino, st.st_mtime_ns) == (before.st_ino, before.st_mtime_ns):
+        return False
+    try:
+        return already_processed(dst)
+    except OSError:
+        return False
+
+
 def run_batch(folder: pathlib.Path, outdir: pathlib.Path | None, machine: str, opts_dict: dict,
-              jobs: int, progress=None) -> list[JobResult]:
-    """Process every G-code file in ``folder``; results in file order."""
+              jobs: int, progress=None) -> tuple[list[JobResult], int | None]:
+    """Process every G-code file in ``folder``. Returns the results in file order and, when
+    Ctrl-C or SIGTERM stopped the batch, the signal number (else None): the workers are then
+    stopped at once (a file being written keeps its old content, no temporary file is left),
+    nothing queued starts, and each file not finished is marked ``interrupted``."""
+    from ..procs import acknowledge, worker_pool
+
     files = find_jobs(folder)
     if outdir is not None:
-        outdir.mkdir(parents=True, exist_ok=True)
+        from ..outputs import make_output_folder
+
+        make_output_folder(outdir, "-o")  # the output folder itself; its parent must exist
     results: dict[str, JobResult] = {}
+    dsts = {f.name: (outdir or folder) / f.name for f in files}
+    before = {}
+    for name, dst in dsts.items():
+        try:
+            before[name] = dst.stat()
+        except OSError:
+            before[name] = None
     # the jobs are the parallelism: a twin method inside a job plans in one process unless
     # the user set GCODE_FEEDOPT_JOBS (optimize/parallel.py)
     if jobs > 1:
         os.environ.setdefault("GCODE_FEEDOPT_JOBS", "1")
-    with cf.ProcessPoolExecutor(max_workers=max(1, jobs)) as pool:
-        futs = {pool.submit(run_one, str(f), str((outdir or folder) / f.name), machine,
-                            opts_dict): f for f in files}
-        try:
-            for fut in cf.as_completed(futs):
+    signum = None
+    try:
+        with worker_pool(max(1, jobs)) as pool:
+            futs = {pool.submit(run_one, str(f), str(dsts[f.name]), machine, opts_dict): f
+                    for f in files}
+            for fut in pool.as_completed(futs):
                 r = fut.result()
                 results[futs[fut].name] = r
                 if progress is not None:
                     progress(r)
-        except KeyboardInterrupt:
-            for fut in futs:
-                fut.cancel()
-            raise
-    return [results[f.name] for f in files]
+    except KeyboardInterrupt as exc:  # Ctrl-C or SIGTERM (procs.Interrupted): workers stopped
+        acknowledge()
+        signum = getattr(exc, "signum", 2)
+    out = []
+    for f in files:
+        r = results.get(f.name)
+        if r is None:
+            if _written_since(dsts[f.name], before[f.name]):
+                r = JobResult(f.name, "ok", message="written; figures lost to the interrupt")
+            else:
+                r = JobResult(f.name, "interrupted", message="not written")
+        out.append(r)
+    return out, signum
 
 
 def table(results: list[JobResult]) -> str:

@@ -63,10 +63,14 @@ def limit_disagreements(profile, env=None) -> list[str]:
 
 def write_failure_log(gcode_path: pathlib.Path, message: str) -> pathlib.Path | None:
     """Write the failure next to the G-code (and say where), for hosts that drop stderr."""
+    from ..errors import FeedOptError
+    from ..outputs import write_bytes
+
     log = pathlib.Path(str(gcode_path) + ".feedopt.log")
-    try:
-        with open(log, "a", encoding="utf-8") as fh:
-            fh.write(f"{datetime.datetime.now().isoformat(timespec='seconds')} {message}\n")
+    line = f"{datetime.datetime.now().isoformat(timespec='seconds')} {message}\n".encode()
+    try:  # appended through the one safe-write path (outputs.py): never a device, no debris
+        old = log.read_bytes() if log.is_file() else b""
+        write_bytes(log, old + line)
         return log
-    except OSError:
+    except (OSError, FeedOptError):
         return None

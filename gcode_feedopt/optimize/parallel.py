@@ -18,9 +18,10 @@ from __future__ import annotations
 
 import multiprocessing as mp
 import os
-from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
+
+from ..procs import worker_pool
 
 #: history handed to a worker, samples (≥ the twin's n_taps + feature lags)
 HISTORY_PAD = 64
@@ -35,7 +36,12 @@ _CTX: dict = {}
 def default_workers() -> int:
     env = os.environ.get("GCODE_FEEDOPT_JOBS")
     if env:
-        return max(1, int(env))
+        if not env.strip().isdigit() or not 1 <= int(env) <= 256:
+            from ..errors import UsageError
+
+            raise UsageError(f"GCODE_FEEDOPT_JOBS={env[:20]!r} is not a whole number from 1 to "
+                             "256; set it so or unset it")
+        return int(env)
     return max(1, min(os.cpu_count() or 1, 8))
 
 
@@ -114,8 +120,8 @@ def run_parallel(ctx: dict, n_workers: int):
                ctx["path"].position(fs[:1])[0, :2])
     _CTX = ctx
     try:
-        with ProcessPoolExecutor(max_workers=n_workers,
-                                 mp_context=mp.get_context("fork")) as pool:
+        # workers stopped on Ctrl-C/SIGTERM/any error, never left blocked (procs.py)
+        with worker_pool(n_workers, mp.get_context("fork")) as pool:
             parts = list(pool.map(_run_chunk, [a for a, _ in chunks], [b for _, b in chunks]))
     finally:
         _CTX = {}

@@ -64,12 +64,12 @@ from __future__ import annotations
 
 import multiprocessing as mp
 import time
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..plan.kinematic import PlannerLimits
+from ..procs import worker_pool
 from ..plan.trapezoid import forward_backward, peak_speed, trapezoids
 from .free import ranges
 
@@ -894,8 +894,8 @@ def plan_slowdown(path, limits: PlannerLimits, evaluator, *, ts_s: float,
             _CTX = {"grid": grid, "settings": st, "history": history, "path": path,
                     "evaluator": evaluator}
             try:
-                with ProcessPoolExecutor(max_workers=min(workers, len(groups)),
-                                         mp_context=mp.get_context("fork")) as pool:
+                # workers stopped on Ctrl-C/SIGTERM/any error, never left blocked (procs.py)
+                with worker_pool(min(workers, len(groups)), mp.get_context("fork")) as pool:
                     parts = list(pool.map(_optimize_group, *zip(*groups)))
             finally:
                 _CTX = {}

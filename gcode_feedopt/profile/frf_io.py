@@ -14,15 +14,20 @@ from ..errors import ProfileError
 from .schema import FRFSet
 
 FRF_HEADER = "freq_hz,real,imag"
+#: largest |value| in an FRF file (Hz or dimensionless gain): 1e308 passed the finite check
+#: and overflowed the modal fit
+MAX_ABS = 1e6
 
 
 def read_frf_csv(path: pathlib.Path) -> tuple[np.ndarray, np.ndarray]:
     """Read one FRF file: header ``freq_hz,real,imag``. Returns (freq_hz (K,), H (K,) complex)."""
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
+    from ..inputs import read_text
+
+    path = pathlib.Path(path)
+    if not path.exists():
         raise ProfileError(f"{path}: FRF file not found; check the path in the profile "
-                           "(paths are relative to the YAML file)") from None
+                           "(paths are relative to the YAML file)")
+    text = read_text(path, "an FRF CSV (freq_hz,real,imag)", ProfileError)
     lines = text.splitlines()
     if not lines or lines[0].strip().replace(" ", "") != FRF_HEADER:
         raise ProfileError(f"{path}:1: FRF file must start with the header '{FRF_HEADER}', got "
@@ -36,7 +41,13 @@ def read_frf_csv(path: pathlib.Path) -> tuple[np.ndarray, np.ndarray]:
                            f"{arr.shape[0]} rows of {arr.shape[1]} columns")
     f = arr[:, 0]
     if not np.all(np.isfinite(arr)):
-        raise ProfileError(f"{path}: FRF contains non-finite values")
+        row = int(np.argwhere(~np.isfinite(arr))[0, 0]) + 2
+        raise ProfileError(f"{path}:{row}: FRF contains a non-finite value; fix or drop the row")
+    big = np.abs(arr) > MAX_ABS
+    if big.any():
+        row = int(np.argwhere(big)[0, 0]) + 2
+        raise ProfileError(f"{path}:{row}: value beyond ±{MAX_ABS:g} (a position FRF is about 1, "
+                           "frequencies a few hundred Hz); check the units or fix the row")
     if np.any(np.diff(f) <= 0) or f[0] < 0:
         raise ProfileError(f"{path}: freq_hz must be non-negative and strictly increasing")
     return f, arr[:, 1] + 1j * arr[:, 2]
@@ -44,8 +55,10 @@ def read_frf_csv(path: pathlib.Path) -> tuple[np.ndarray, np.ndarray]:
 
 def write_frf_csv(path: pathlib.Path, freq_hz: np.ndarray, response: np.ndarray) -> None:
     """Write one FRF file, 12 significant digits (a round trip is exact to 1e-12 relative)."""
+    from ..outputs import output_file  # temp + fsync + os.replace, no debris on any error
+
     rows = np.column_stack([freq_hz, response.real, response.imag])
-    with open(path, "w", newline="\n") as fh:
+    with output_file(path, text=True) as fh:
         fh.write(FRF_HEADER + "\n")
         for r in rows:
             fh.write(f"{float(r[0]):.12g},{float(r[1]):.12g},{float(r[2]):.12g}\n")

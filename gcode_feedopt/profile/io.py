@@ -282,11 +282,14 @@ def load_profile(name_or_path) -> MachineProfile:
             raise ProfileError(f"unknown machine '{text}'; {hint}built-in profiles: "
                                f"{', '.join(names)} (or pass a profile .yaml path)")
         p = _builtin_dir() / f"{text}.yaml"
-    if not p.is_file():
+    if not p.exists():  # a FIFO or folder: read_text says what it is
         raise ProfileError(f"{p}: profile file not found; check the path or use a built-in "
                            f"name ({', '.join(builtin_names())})")
+    from ..inputs import read_text
+
+    text = read_text(p, "a profile YAML", ProfileError)
     try:
-        data = yaml.safe_load(p.read_text())
+        data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f":{mark.line + 1}" if mark else ""
@@ -347,15 +350,42 @@ def profile_to_dict(profile: MachineProfile, frf_paths: dict | None = None) -> d
     return d
 
 
-def save_profile(profile: MachineProfile, path) -> pathlib.Path:
-    """Write ``path`` (YAML) and the FRF CSVs in a folder named after it, beside it."""
-    path = pathlib.Path(path)
+def check_profile_output(path, option: str = "-o", inputs=()):
+    """Check that a profile can be written at ``path`` (outputs.check_output) and that its
+    FRF folder (``path``'s stem, beside it) can be made and holds none of ``inputs``.
+    Nothing is written; returns the outputs.Target of the YAML file."""
+    from ..errors import OutputError
+    from ..outputs import check_output
+
+    inputs = [pathlib.Path(i) for i in inputs if i is not None]
+    target = check_output(path, option, inputs=inputs, suffixes=(".yaml", ".yml"))
+    folder = target.path.parent / target.path.stem
+    if folder.exists() and not folder.is_dir():
+        raise OutputError(f"{option}: {path}: its FRF folder {folder} exists and is not a "
+                          "folder; choose another profile name")
+    if folder.is_dir():
+        real = folder.resolve()
+        for i in inputs:
+            if i.exists() and i.resolve().parent == real:
+                raise OutputError(f"{option}: {path}: its FRFs go to {folder}/, where the input "
+                                  f"{i} is; choose another profile name")
+    return target
+
+
+def save_profile(profile: MachineProfile, path, option: str = "-o") -> pathlib.Path:
+    """Write ``path`` (YAML) and the FRF CSVs in a folder named after it, beside it; every
+    file through gcode_feedopt.outputs (temp + replace). The folder ``path`` is in must
+    exist; the FRF folder is made (one level)."""
+    from ..outputs import make_output_folder, write_text
+
+    target = check_profile_output(path, option)
+    path = target.path
     folder = path.parent / path.stem
     frf_paths = {}
     for a, ax in profile.axes.items():
         if ax.frf is None:
             continue
-        folder.mkdir(parents=True, exist_ok=True)
+        make_output_folder(folder, option)
         rel = []
         for k in range(ax.frf.n_measurements):
             fname = f"{a}_{k + 1:02d}.csv"
@@ -363,5 +393,5 @@ def save_profile(profile: MachineProfile, path) -> pathlib.Path:
             rel.append(f"{folder.name}/{fname}")
         frf_paths[a] = rel
     d = profile_to_dict(profile, frf_paths)
-    path.write_text(yaml.safe_dump(d, sort_keys=False, width=100))
+    write_text(target, yaml.safe_dump(d, sort_keys=False, width=100))
     return path

@@ -116,7 +116,8 @@ def format_rows(values: np.ndarray, decimals: int = DECIMALS) -> bytes:
 def write_log(path, t_s: np.ndarray, cmd_mm: np.ndarray, pos_mm: np.ndarray,
               e_cmd_mm: np.ndarray | None = None, include_z: bool = True) -> None:
     """Write an encoder log: ``t,x_cmd,y_cmd,x,y`` then ``z_cmd,z`` (if ``include_z``) and
-    ``e_cmd`` (if given). Arrays: t (K,), cmd and pos (K, 3), e (K,)."""
+    ``e_cmd`` (if given). Arrays: t (K,), cmd and pos (K, 3), e (K,). ``path``: a path or
+    an ``outputs.Target`` (written through gcode_feedopt.outputs)."""
     t = np.asarray(t_s, dtype=float)
     cmd = np.asarray(cmd_mm, dtype=float)
     pos = np.asarray(pos_mm, dtype=float)
@@ -132,12 +133,12 @@ def write_log(path, t_s: np.ndarray, cmd_mm: np.ndarray, pos_mm: np.ndarray,
     if any(c.shape != (K,) for c in cols):
         raise ValueError("write_log: every column must have as many samples as t")
     data = np.column_stack(cols)
-    tmp = f"{os.fspath(path)}.part"
-    with open(tmp, "wb") as f:
+    from ..outputs import output_file  # temp + fsync + os.replace, no debris on any error
+
+    with output_file(path, "--log") as f:
         f.write((",".join(names) + "\n").encode())
         for r0 in range(0, K, _BLOCK_ROWS):
             f.write(format_rows(data[r0:r0 + _BLOCK_ROWS]))
-    os.replace(tmp, path)
 
 
 def read_log(path) -> EncoderLog:

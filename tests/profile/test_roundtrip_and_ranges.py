@@ -21,6 +21,8 @@ def _same(a, b):
 @pytest.mark.parametrize("name", ["ender3pro", "nomad3"])
 def test_save_load_round_trip_is_exact(tmp_path, name):
     p = load_profile(name)
+    (tmp_path / "a").mkdir()  # output folders are never created (outputs.py)
+    (tmp_path / "b").mkdir()
     q = load_profile(save_profile(p, tmp_path / "a" / f"{name}.yaml"))
     _same(p, q)
     r = load_profile(save_profile(q, tmp_path / "b" / f"{name}.yaml"))

@@ -1,0 +1,87 @@
+"""Options shared by the sub-commands: bounded numbers (one rule, one message shape, the
+same limits in every command) and the profile file an output must not replace.
+
+Every numeric option is parsed by ``Bounded``: NaN and infinities are refused, and the value
+must lie in a stated range. The ranges are those of the profile schema where the option
+overrides a profile value (``profile/io.py``: V_max ≤ 5000 mm/s, A_max ≤ 1e6 mm/s²,
+tolerance ≤ 10 mm, stringency 0.5–0.9999), with lower limits that keep a plan's size sane:
+a plan has one sample per Ts (2 ms), so ``--vmax 1e-6`` on a Benchy would ask for hundreds of
+GiB; the plan's size is also checked against its file (pipeline.check_plan_size).
+"""
+
+from __future__ import annotations
+
+import math
+import pathlib
+
+import click
+
+#: option -> (low, high, unit): the one table of numeric limits
+LIMITS = {
+    "vmax": (0.1, 5000.0, "mm/s"),
+    "amax": (1.0, 1e6, "mm/s²"),
+    "tolerance": (0.001, 10.0, "mm"),
+    "stringency": (0.5, 0.9999, ""),
+    "seed": (0, 2**32 - 1, ""),
+    "fit_fraction": (0.1, 0.9, ""),
+    "freq_hz": (1.0, 2000.0, "Hz"),
+    "hz_per_sec": (0.01, 1000.0, "Hz/s"),
+    "accel_per_hz": (0.1, 10000.0, "mm/s² per Hz"),
+    "sweeping_accel": (0.0, 1e5, "mm/s²"),
+    "sweeping_period": (0.0, 100.0, "s"),
+}
+
+
+def _fmt(v) -> str:
+    return f"{v:g}" if isinstance(v, float) else str(v)
+
+
+class Bounded(click.ParamType):
+    """A finite number within [low, high] (an integer when ``integer``)."""
+
+    def __init__(self, key: str, integer: bool = False):
+        self.low, self.high, self.unit = LIMITS[key]
+        self.integer = integer
+        self.name = "integer" if integer else "number"
+
+    def get_metavar(self, param, ctx=None):  # click >= 8.2 passes ctx
+        return f"[{_fmt(self.low)}-{_fmt(self.high)}]"
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            x = value
+        else:
+            text = str(value).strip()
+            if len(text) > 40:
+                text = text[:37] + "..."
+            try:
+                x = int(text) if self.integer else float(text)
+            except ValueError:
+                self.fail(f"'{text}' is not {'an integer' if self.integer else 'a number'}; "
+                          f"give {self._range()}", param, ctx)
+        if not self.integer and not math.isfinite(x):
+            self.fail(f"{x} is not a finite number; give {self._range()}", param, ctx)
+        if x < self.low or x > self.high:
+            side = "below the smallest" if x < self.low else "above the largest"
+            lim = self.low if x < self.low else self.high
+            self.fail(f"{_fmt(x)} is {side} supported value {_fmt(lim)}"
+                      f"{' ' + self.unit if self.unit else ''}; give {self._range()}", param, ctx)
+        return x
+
+    def _range(self) -> str:
+        u = f" {self.unit}" if self.unit else ""
+        return f"a value from {_fmt(self.low)} to {_fmt(self.high)}{u}"
+
+
+VMAX = Bounded("vmax")
+AMAX = Bounded("amax")
+TOLERANCE = Bounded("tolerance")
+STRINGENCY = Bounded("stringency")
+SEED = Bounded("seed", integer=True)
+
+
+def profile_files(machine: str) -> list[pathlib.Path]:
+    """The profile file ``--machine`` names, when it is a file (an input no output may
+    replace)."""
+    p = pathlib.Path(machine)
+    return [p] if p.suffix.lower() in (".yaml", ".yml") and p.is_file() else []
