@@ -50,7 +50,9 @@ def learn(logs, machine, out_path, skip_bad):
                     if r.get("warmup_samples") else "")
             click.echo(f"{path}: {r['axis']}: prediction RMS {pr['before'] * 1e3:.1f} -> "
                        f"{pr['after'] * 1e3:.1f} µm (step x{r['step_scale']:.3g}"
-                       f"{', bounded' if r['step_clipped'] else ''}{warm})")
+                       f"{', bounded' if r['step_clipped'] else ''}{warm}); what the twin "
+                       f"cannot predict: {r['noise_level_mm'] * 1e3:.1f} µm at rest + "
+                       f"{r['noise_per_speed_s'] * 1e3:.2f} ms x speed")
     if n_ok == 0:
         raise LogError("no log was learned from; nothing written")
     save_profile(profile, out_path)

@@ -33,6 +33,7 @@ from __future__ import annotations
 import dataclasses
 import datetime
 import hashlib
+import math
 import os
 
 import numpy as np
@@ -53,6 +54,58 @@ def open_loop_rms(twin, x_cmd, x_meas, warmup: int = 0) -> float:
     return float(np.sqrt(np.mean((mean[warmup:] - np.asarray(x_meas)[warmup:]) ** 2)))
 
 
+def unexplained_level(twin, x_cmd, x_meas, warmup: int = 0) -> tuple[float, float]:
+    """What ``twin`` cannot predict on a log open loop (as the optimizer predicts), after the
+    ``warmup`` samples, as (σ_r mm, k_v s): a variance σ_r² + k_v²·v² with v the commanded
+    speed of the axis.
+
+    The residual is measured − open-loop prediction, less the part the profile's own spread
+    explains (the plant draw, directions Y of the known uncertainty with z ~ N(0, I), fitted by
+    ridge least squares at the residual's own level: the next print's twin still carries that
+    spread in its interval, so counting it here would count it twice). Its squares are then
+    split by least squares (both terms ≥ 0) into a level that stays at rest — a fan, whatever
+    its phase — and one that grows with the speed — an unmodelled lag, whose error is
+    ≈ delay·v and vanishes at rest, so the optimizer can slow down for it."""
+    from ..twin.features import factor_series
+
+    x_cmd = np.asarray(x_cmd, float)
+    mean, _ = dataclasses.replace(twin).run(x_cmd, None, learn=False)
+    w0 = int(warmup)
+    r = np.asarray(x_meas, float)[w0:] - mean[w0:]
+    if r.size < 8:
+        return 0.0, 0.0
+    Y = factor_series(twin.ir, x_cmd - x_cmd[0])[:, w0:]
+    s2 = float(np.mean(r * r))
+    if Y.shape[0] and s2 > 0.0:
+        z = np.linalg.solve(Y @ Y.T + s2 * np.eye(Y.shape[0]), Y @ r)
+        r = r - z @ Y
+    v2 = (np.gradient(x_cmd) / twin.ir.ts_s)[w0:] ** 2
+    r2 = r * r
+    A = np.column_stack([np.ones_like(v2), v2])
+    (c0, c1), *_ = np.linalg.lstsq(A, r2, rcond=None)
+    if c1 <= 0.0 or not np.any(v2 > 0):
+        return float(np.sqrt(np.mean(r2))), 0.0
+    if c0 <= 0.0:
+        c0, c1 = 0.0, float(v2 @ r2 / (v2 @ v2))
+    return float(np.sqrt(c0)), float(np.sqrt(c1))
+
+
+def narrowed(ir, z, S):
+    """The Gaussian impulse response ``ir`` given z ~ N(z, S Sᵀ) in its own directions:
+    mean + L z, factor L S."""
+    from ..twin.frf import ImpulseResponse
+
+    L = ir.factor @ S
+    return ImpulseResponse(ts_s=ir.ts_s, mean=ir.mean + ir.factor @ z,
+                           var=np.einsum("ij,ij->i", L, L), factor=L)
+
+
+def _sqrtm(C):
+    """Symmetric square root of a covariance (negative round-off clipped)."""
+    w, V = np.linalg.eigh(0.5 * (C + C.T))
+    return (V * np.sqrt(np.maximum(w, 0.0))) @ V.T
+
+
 def _sha(path) -> str:
     try:
         with open(path, "rb") as f:
@@ -66,7 +119,9 @@ def learn_axis(profile, axis: str, x_cmd, x_meas, *, source: str = "", sha: str 
     """(Prior, record) for one axis from one log's commanded/measured positions; the first
     ``warmup`` samples (a log that starts mid-motion, ``closedloop.logs``) are neither learned
     from nor scored."""
-    from ..twin.model import axis_twin
+    from ..twin.model import (NOISE_FLOOR_MIN_MM, axis_twin, learned_draw, learned_noise_mm,
+                              learned_speed_noise_s)
+    from ..twin.physics import axis_impulse
 
     twin = axis_twin(profile, axis, method="pidd")
     mu0, cov0 = twin.mu.copy(), twin.cov.copy()
@@ -76,16 +131,24 @@ def learn_axis(profile, axis: str, x_cmd, x_meas, *, source: str = "", sha: str 
         raise LogError(f"{source}: the twin's prediction misses axis {axis} by {before:.3g} mm "
                        f"RMS (limit {MAX_PRED_RMS_SIGMAS:g}·σ_ε = {MAX_PRED_RMS_SIGMAS * sigma:.3g} mm); "
                        f"not learned - run `gcode-feedopt diagnose` on it first")
+    ir0 = twin.ir
     twin.run(x_cmd, x_meas, learn=True, warmup=warmup)
     mu1, cov1 = twin.mu, twin.cov
     step = mu1 - mu0
     dist = float(np.sqrt(step @ np.linalg.pinv(cov0, hermitian=True) @ step))
     cov = cov1 + FORGET * cov0
     cov = 0.5 * (cov + cov.T)
-    base, _ = dataclasses.replace(twin, mu=mu0, cov=cov0).run(x_cmd, None, learn=False)
+    # which machine of the population this is (the plant draw z, learned with the weights):
+    # its posterior, tempered like the weights' (prior N(0, I) in the twin's coordinates)
+    r = ir0.factor.shape[1]
+    z_step = getattr(twin, "z_mean", np.zeros(r))
+    S_new = _sqrtm(getattr(twin, "z_cov", np.eye(r)) + FORGET * np.eye(r))
+    base, _ = dataclasses.replace(twin, mu=mu0, cov=cov0, ir=ir0).run(x_cmd, None, learn=False)
     scale = 1.0
     for _ in range(12):
-        mean, _ = dataclasses.replace(twin, mu=mu0 + scale * step, cov=cov).run(x_cmd, None, learn=False)
+        trial = dataclasses.replace(twin, mu=mu0 + scale * step, cov=cov,
+                                    ir=narrowed(ir0, scale * z_step, S_new))
+        mean, _ = trial.run(x_cmd, None, learn=False)
         change = float(np.sqrt(np.mean((mean[warmup:] - base[warmup:]) ** 2)))
         if change <= MAX_PRED_CHANGE_MM:
             break
@@ -94,29 +157,60 @@ def learn_axis(profile, axis: str, x_cmd, x_meas, *, source: str = "", sha: str 
         scale = 0.0
     clipped = scale < 1.0
     mu = mu0 + scale * step
-    after = open_loop_rms(dataclasses.replace(twin, mu=mu, cov=cov), x_cmd, x_meas, warmup)
     prior = profile.twin.priors.get(axis)
+    # in the population's coordinates: h = E h + L (z0 + S0 z), z ~ N(scale·z_step, S_new²)
+    pop_r = axis_impulse(profile, axis).factor.shape[1]
+    z0, S0 = learned_draw(prior, pop_r) or (np.zeros(pop_r), np.eye(pop_r))
+    draw = None
+    if r == pop_r:
+        draw = {"z": [round(float(v), 9) for v in z0 + S0 @ (scale * z_step)],
+                "sqrt_cov": [[round(float(v), 9) for v in row] for row in S0 @ S_new]}
+    twin = dataclasses.replace(twin, ir=narrowed(ir0, scale * z_step, S_new))
+    learned = dataclasses.replace(twin, mu=mu, cov=cov)
+    after = open_loop_rms(learned, x_cmd, x_meas, warmup)
     history = tuple(prior.learned_from) if prior is not None else ()
+    # the level of what the learned twin still cannot predict on this log, averaged (in
+    # variance) with what earlier logs measured: one print cannot talk it away
+    # (a fan the profile's extensions already carry as variance is not counted twice)
+    from ..twin.extensions import extra_variance_mm2
+
+    level_log, kv_log = unexplained_level(learned, x_cmd, x_meas, warmup)
+    level_log = math.sqrt(max(level_log ** 2 - extra_variance_mm2(profile.axes[axis].effects),
+                              NOISE_FLOOR_MIN_MM ** 2))
+    old_level = learned_noise_mm(prior)
+    level, kv = level_log, kv_log
+    if old_level is not None:
+        level = math.sqrt(0.5 * (old_level ** 2 + level_log ** 2))
+        kv = math.sqrt(0.5 * (learned_speed_noise_s(prior) ** 2 + kv_log ** 2))
     rec = {"log": source, "sha256": sha, "samples": int(len(x_cmd)), "warmup_samples": int(warmup),
            "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
            "method": f"bounded Bayesian update (prediction change <= {MAX_PRED_CHANGE_MM:g} mm RMS, "
                      f"forget {FORGET:g})",
            "prediction_rms_mm": {"before": round(before, 6), "after": round(after, 6)},
-           "step_sigmas": round(dist, 3), "step_scale": scale, "step_clipped": bool(clipped)}
+           "step_sigmas": round(dist, 3), "step_scale": scale, "step_clipped": bool(clipped),
+           "noise_level_log_mm": round(level_log, 7), "noise_level_mm": round(level, 7),
+           "noise_per_speed_log_s": round(kv_log, 9), "noise_per_speed_s": round(kv, 9)}
+    if draw is not None:
+        rec["plant_draw"] = draw
     return Prior(mu=mu, cov=cov, learned_from=history + (rec,)), rec
 
 
 def learn_logs(profile, logs):
     """Profile with priors updated from each MotionLog in turn; returns (profile, records)."""
+    from ..twin.extensions import mean_offsets
+
     records = []
     for log in logs:
         sha = _sha(log.source) if os.path.exists(str(log.source)) else ""
         priors = dict(profile.twin.priors)
         w0 = int(getattr(log, "warmup", 0))
+        # what the profile's extensions (``diagnose -o``) already predict is taken off the
+        # measurements, as ``predict`` does: the twin learns what is left
+        off = mean_offsets(profile, log.cmd_mm[:, :2])
         for i, ax in enumerate(("x", "y")):
             if np.ptp(log.cmd_mm[w0:, i]) < 1.0:
                 continue
-            priors[ax], rec = learn_axis(profile, ax, log.cmd_mm[:, i], log.pos_mm[:, i],
+            priors[ax], rec = learn_axis(profile, ax, log.cmd_mm[:, i], log.pos_mm[:, i] - off[:, i],
                                          source=str(log.source), sha=sha, warmup=w0)
             records.append({"axis": ax, **rec})
         profile = dataclasses.replace(profile, twin=dataclasses.replace(profile.twin, priors=priors))

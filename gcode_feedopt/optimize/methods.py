@@ -117,17 +117,28 @@ def plan_conservative(path, profile, *, tolerance_mm, stringency, plant, vmax_mm
 
 
 def make_twin_predictor(profile, method: str, *, learn: bool):
-    """TwinPredictor of a profile for pb | dd | pidd: the physics and the weight prior from
-    the one constructor the twin itself uses (twin.physics.axis_impulse, twin.model.axis_prior)."""
-    from ..twin.model import axis_prior
-    from ..twin.physics import axis_impulse
+    """TwinPredictor of a profile for pb | dd | pidd from what the twin itself is built of:
+    the physics (twin.model.twin_impulse: the profile's FRF population, narrowed to this
+    machine once ``learn`` has seen its logs), the weight prior (twin.model.axis_prior) and,
+    per axis, the level of what the twin cannot predict (twin.model.axis_noise_mm: what
+    ``learn`` measured on the machine's logs, the profile's σ_ε until then, plus the variance
+    of a fan ``diagnose -o`` wrote as an extension, twin.extensions.extra_variance_mm2) and
+    the part of it that grows with the commanded speed (twin.model.learned_speed_noise_s),
+    which widen the chance constraint by what the twin cannot predict. (The extensions'
+    deterministic terms, twin.extensions.mean_offsets, are not part of the predictor.)"""
+    from ..twin.extensions import extra_variance_mm2
+    from ..twin.model import axis_noise_mm, axis_prior, learned_speed_noise_s, twin_impulse
 
     tw = profile.twin
-    irs = [axis_impulse(profile, ax) for ax in ("x", "y")]
+    irs = [twin_impulse(profile, ax, method=method) for ax in ("x", "y")]
     priors = [axis_prior(profile, ax, method=method) for ax in ("x", "y")]
-    return TwinPredictor(irs, tw.n2, tw.n3, tw.sigma_eps_mm ** 2, [p[0] for p in priors],
+    s2 = [axis_noise_mm(profile, ax, method=method) ** 2
+          + extra_variance_mm2(profile.axes[ax].effects) for ax in ("x", "y")]
+    kv2 = [0.0 if method == "dd" else learned_speed_noise_s(tw.priors.get(ax)) ** 2
+           for ax in ("x", "y")]
+    return TwinPredictor(irs, tw.n2, tw.n3, s2, [p[0] for p in priors],
                          [p[1] for p in priors], use_feature_var=(method != "dd"),
-                         learn=learn and method in ("dd", "pidd"))
+                         learn=learn and method in ("dd", "pidd"), speed_var=kv2)
 
 
 def _pieces(path, z_pieces: bool = True):
@@ -169,7 +180,7 @@ def check_noise_floor(predictor, profile, tolerance_mm: float, stringency: float
     """Refuse a tolerance below what the twin can promise at rest: noise and bias alone (the
     contour error of a machine standing still); below it every sample would be given up."""
     z = float(norm.ppf(stringency))
-    floor = z * max(math.sqrt(predictor.s2 + float(c[0, 0])) for c in predictor.cov)
+    floor = z * max(math.sqrt(s2 + float(c[0, 0])) for s2, c in zip(predictor.s2, predictor.cov))
     if tolerance_mm <= 1.05 * floor:
         raise FeedOptError(
             f"tolerance {tolerance_mm:g} mm is below what the twin can promise at stringency "

@@ -118,12 +118,17 @@ class TwinPredictor:
     """
 
     def __init__(self, irs, n2: int, n3: int, sigma2: float, mu, cov, *,
-                 use_feature_var: bool = True, learn: bool = False):
+                 use_feature_var: bool = True, learn: bool = False, speed_var=0.0):
         self.h = [np.asarray(ir.mean, float) for ir in irs]
+        self.ts_s = float(irs[0].ts_s)
+        #: k_v² per axis (x, y), s²: what the twin cannot predict that grows with the axis's
+        #: commanded speed v (an unmodelled lag), variance k_v²·v² (closedloop.learn)
+        self.kv2 = np.broadcast_to(np.asarray(speed_var, float), (2,)).copy()
         self.L = [np.asarray(ir.factor, float) if use_feature_var else np.zeros((ir.mean.size, 0))
                   for ir in irs]
         self.n2, self.n3 = int(n2), int(n3)
-        self.s2 = float(sigma2)
+        #: σ² per axis (x, y): a number is both axes'
+        self.s2 = np.broadcast_to(np.asarray(sigma2, float), (2,)).copy()
         self.mu = [np.array(m, float) for m in mu]
         self.cov = [np.array(c, float) for c in cov]
         self.use_var = use_feature_var
@@ -254,7 +259,10 @@ class TwinPredictor:
         P[:, 1:2 + n2] = allx[ix]
         if n3:
             P[:, 2 + n2:] = alle[ie]
-        var = self.s2 + np.einsum("ij,ij->i", P @ cov, P)
+        var = self.s2[a] + np.einsum("ij,ij->i", P @ cov, P)
+        if self.kv2[a]:
+            v = np.diff(np.concatenate([self.w[a].tail(k0, 1), dev_h])) / self.ts_s
+            var = var + self.kv2[a] * v * v
         if self.use_var and Y.shape[1]:
             # β̄ᵀΣ_ψβ̄ with the full feature covariance (as twin.model.AxisTwin.run): the
             # random part of Σ_lag c_lag x̂(t − lag), c = +β_x on x̂ lags, −β_e on e lags
@@ -398,7 +406,7 @@ class TwinPredictor:
                     else:
                         var = np.zeros(psi.size)
                     self.mu[a], self.cov[a] = laplace_update(self.mu[a], self.cov[a], psi, var,
-                                                             x_dev, self.s2)
+                                                             x_dev, self.s2[a])
                 e[t] = x_dev - xh[t]
         if self.learn:
             self._rec.clear()
@@ -570,7 +578,14 @@ def predict_trajectory(tp: TwinPredictor, cmd: np.ndarray, series: bool = False,
         else:
             e = drive
         m = e + xm
-        var = np.full(K, tp.s2)
+        var = np.full(K, tp.s2[a])
+        if tp.kv2[a]:
+            # the commanded speed (0 at each window's first sample, whose past is elsewhere)
+            v = np.zeros(K)
+            v[1:] = np.diff(cmd[:, a]) / tp.ts_s
+            if np.ndim(ref) == 2:
+                v[1:][np.any(ref[1:] != ref[:-1], axis=1)] = 0.0
+            var += tp.kv2[a] * v * v
         # ψᵀΣ_βψ in chunks of rows, over the feature columns that are not identically zero
         # (offline with the physics prior every self-predicted error e is 0)
         use_e = bool(n3) and bool(np.any(e != 0.0))

@@ -48,9 +48,13 @@ matters); the parent takes the groups' plans as they are, predicts again the sam
 after each group boundary (which remember the other group's plan, not F), and settles there.
 
 Samples predicted over the tolerance even at rest (the oracle's plant carries a disturbance
-larger than the tolerance leaves room for), or even with their whole cause window at the
-``scale_min`` floor, are given up on, counted in ``info["relaxed_samples"]``, and their cells
-return to full speed (slowing them down does not help).
+larger than the tolerance leaves room for, or the twin's noise level alone fills it), or even
+with their whole cause window at the ``scale_min`` floor after looking back up to
+``max_cause_before_s`` (a hard stop into a slowed stretch rings on through it: the cause is
+the stop, before the window), are given up on, counted in ``info["relaxed_samples"]``, and
+their cells return to full speed (slowing them down does not help). The twin's uncertainty is
+mostly the motion's own (the spread of the FRFs acts on the command's deviations), so a step's
+factor counts only the uncertainty at rest as fixed and scales the rest with the motion.
 
 The plan stays within F everywhere (every limit is F's limit times r ≤ 1); ``cells`` of the
 result tell the writer where and how much it was slowed.
@@ -98,6 +102,10 @@ class SlowdownSettings:
     escalate_after: int = 4
     #: floor of the scale: below it a violation is not motion-induced
     scale_min: float = 0.05
+    #: a violation whose cause window is all at the floor looks back up to this far (the
+    #: window doubling) before it is given up on, s: the ringing after a hard stop into a
+    #: slowed stretch decays as e^(−ζωt), ~65 ms for a 37 Hz mode at ζ 0.067
+    max_cause_before_s: float = 0.5
     #: whole-file checks at the end (each may reveal violations that rounds settle)
     max_checks: int = 4
     #: during rounds a changed stretch is predicted with this much history before it (and
@@ -343,6 +351,13 @@ class TwinEvaluator:
         offline twin (a machine at rest is predicted exactly where it is commanded)."""
         return np.zeros(geo["on"].size)
 
+    def rest_uncertainty(self) -> float:
+        """zσ of a machine standing still, mm: the noise level and the bias of the axis that
+        leaves most room (the uncertainty of the motion itself shrinks as it slows down)."""
+        tp = self.tp
+        s2 = np.broadcast_to(np.asarray(tp.s2, float), (len(tp.cov),))
+        return self.z * float(np.sqrt(min(v + float(c[0, 0]) for v, c in zip(s2, tp.cov))))
+
 
 class PlantEvaluator(TwinEvaluator):
     """The oracle's bound: the virtual machine's own plant, known exactly (zero std). Its
@@ -366,6 +381,10 @@ class PlantEvaluator(TwinEvaluator):
         out = simulate_axes(cmd3, self.plant.ts_s, self.plant.impulse, self.effects,
                             mode_hz=self.plant.mode_hz).actual_mm
         return out[:, :2].T, np.zeros((2, cmd_xy.shape[0]))
+
+    def rest_uncertainty(self) -> float:
+        """The oracle knows its plant: no uncertainty (its disturbance is ``rest_error``)."""
+        return 0.0
 
     def rest_error(self, geo: dict, idx: np.ndarray) -> np.ndarray:
         """(K,) what the plant's effects add at sample ``idx`` of a machine standing still,
@@ -721,21 +740,47 @@ def _optimize(state: _State, st: SlowdownSettings, relaxed: np.ndarray, *, grow:
             # the part of the error that no speed changes (a disturbance at rest: the plant's,
             # for the oracle; 0 for the twin, whose offline error vanishes at rest)
             rest = out["rest"][viol]
-            room = st.aim * tol - out["unc"][viol] - rest
-            f = np.clip((np.maximum(room, 0.0) / np.maximum(out["mot"][viol] - rest, 1e-12))
-                        ** st.exponent, lo_f, cap)
+            # the uncertainty of the motion shrinks with it: only the evaluator's uncertainty
+            # at rest (u0) stays; zσ lies below the chord u0 + g·(zσ − u0) as the motion part
+            # of σ scales by g, so the factor below never under-slows against the full zσ
+            u0 = state.ev.rest_uncertainty()
+            room = st.aim * tol - u0 - rest
+            moving = out["mot"][viol] + np.maximum(out["unc"][viol] - u0, 0.0) - rest
+            f = np.clip((np.maximum(room, 0.0) / np.maximum(moving, 1e-12)) ** st.exponent,
+                        lo_f, cap)
+            scale = state.scale
+            stuck = (scale <= st.scale_min * (1 + 1e-9)) | grid.fixed
+            # a window whose every cell is already at the floor has its cause further back (a
+            # hard stop before a slowed stretch rings for a few periods of the mode): look back
+            # twice as far, up to ``max_cause_before_s``, before calling the violation hopeless
+            w_v = np.full(viol.size, widen)
             owner, cells = cause(starts, viol, widen)
+            at_floor = np.ones(viol.size, bool)
+            np.logical_and.at(at_floor, owner, stuck[cells])
+            while True:
+                sub = np.flatnonzero(at_floor & (st.cause_before_s * w_v < st.max_cause_before_s))
+                if sub.size == 0:
+                    break
+                w_v[sub] *= 2.0
+                keep = ~np.isin(owner, sub)
+                o2, c2 = [], []
+                for w in np.unique(w_v[sub]):
+                    part = sub[w_v[sub] == w]
+                    o, c = cause(starts, viol[part], w)
+                    o2.append(part[o])
+                    c2.append(c)
+                owner = np.concatenate([owner[keep], *o2])
+                cells = np.concatenate([cells[keep], *c2])
+                at_floor = np.ones(viol.size, bool)
+                np.logical_and.at(at_floor, owner, stuck[cells])
             fac = np.ones(grid.n_cells)
             np.minimum.at(fac, cells, f[owner])
             fac[grid.fixed | relaxed] = 1.0
-            scale = state.scale
-            # a violation that standing still would not cure, or whose whole cause window is
+            # a violation that standing still would not cure (the error at rest, and the
+            # evaluator's uncertainty at rest, leave no room), or whose widest cause window is
             # at the floor, is not the motion's: give up on it and give its cells their speed
             # back
             hopeless_v = room <= 0.0
-            at_floor = np.ones(viol.size, bool)
-            np.logical_and.at(at_floor, owner, (scale <= st.scale_min * (1 + 1e-9))[cells]
-                              | grid.fixed[cells])
             hopeless_v |= at_floor
             new = np.maximum(scale * fac, st.scale_min)
             if hopeless_v.any():

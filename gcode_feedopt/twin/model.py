@@ -208,6 +208,9 @@ class AxisTwin:
         self.mu = theta[:d]
         self.cov = 0.5 * (C[:d, :d] + C[:d, :d].T)
         self.sigma2_learned = max(s2, lam)
+        #: which machine of the population the log showed: z's posterior (r,), (r, r)
+        self.z_mean = theta[d:].copy()
+        self.z_cov = 0.5 * (C[d:, d:] + C[d:, d:].T)
         return mean + ref, np.sqrt(np.maximum(var, 0.0))
 
 
@@ -271,6 +274,76 @@ def axis_prior(profile, axis: str, *, method: str = "pidd") -> tuple[np.ndarray,
     return mu, shift_invariant_cov(cov, tw.n2)
 
 
+def learned_noise_mm(prior) -> float | None:
+    """The level of what the twin cannot predict that ``learn`` measured on this axis's logs
+    (``closedloop.learn``: the RMS of the open-loop residual once the weights and the plant
+    draw have explained what they can), mm; None when nothing was learned. It is kept in the
+    last record of ``Prior.learned_from`` (``noise_level_mm``), which the profile's YAML
+    carries as it is."""
+    if prior is None:
+        return None
+    for rec in reversed(tuple(prior.learned_from)):
+        if isinstance(rec, dict) and rec.get("noise_level_mm") is not None:
+            return float(rec["noise_level_mm"])
+    return None
+
+
+def learned_speed_noise_s(prior) -> float:
+    """k_v, s: the part of what the twin cannot predict that ``learn`` found to grow with the
+    axis's commanded speed v (σ = k_v·|v|: an unmodelled lag, which ``diagnose`` can name);
+    0 when nothing was learned."""
+    if prior is None:
+        return 0.0
+    for rec in reversed(tuple(prior.learned_from)):
+        if isinstance(rec, dict) and rec.get("noise_per_speed_s") is not None:
+            return float(rec["noise_per_speed_s"])
+    return 0.0
+
+
+def axis_noise_mm(profile, axis: str, *, method: str = "pidd") -> float:
+    """σ of what the twin of one axis cannot predict, mm, as the optimizer and an offline
+    prediction use it: the level ``learn`` measured on the machine's own logs when there is
+    one (a fan, a disturbance the profile lacks: the chance constraint keeps its margin), the
+    profile's σ_ε otherwise (and always for ``dd``, which starts from nothing)."""
+    level = None if method == "dd" else learned_noise_mm(profile.twin.priors.get(axis))
+    return profile.twin.sigma_eps_mm if level is None else max(level, NOISE_FLOOR_MIN_MM)
+
+
+def learned_draw(prior, r: int):
+    """Which machine of the profile's population ``learn`` found the logs to come from: (z
+    (r,), S (r, r)) with the plant draw z' = z + S u, u ~ N(0, I_r), in the directions of the
+    axis's known uncertainty (h = E h + L z'); None when nothing was learned (or the physics
+    changed its number of directions since). Kept in the last record of ``Prior.learned_from``
+    that has one (``plant_draw``)."""
+    if prior is None:
+        return None
+    for rec in reversed(tuple(prior.learned_from)):
+        got = rec.get("plant_draw") if isinstance(rec, dict) else None
+        if got is not None:
+            z = np.asarray(got["z"], float)
+            S = np.asarray(got["sqrt_cov"], float)
+            if z.shape != (r,) or S.shape != (r, r):
+                return None
+            return z, S
+    return None
+
+
+def twin_impulse(profile, axis: str, *, method: str = "pidd") -> ImpulseResponse:
+    """The Gaussian impulse response the twin of one axis uses: the profile's (the FRF
+    population, ``twin.physics.axis_impulse``) or, once ``learn`` has seen logs of this
+    machine, the population narrowed to it: mean E h + L z, factor L S (``learned_draw``).
+    The virtual machine keeps drawing plants from the population itself."""
+    ir = axis_impulse(profile, axis)
+    got = None if method == "dd" else learned_draw(profile.twin.priors.get(axis),
+                                                   ir.factor.shape[1])
+    if got is None:
+        return ir
+    z, S = got
+    L = ir.factor @ S
+    return ImpulseResponse(ts_s=ir.ts_s, mean=ir.mean + ir.factor @ z,
+                           var=np.einsum("ij,ij->i", L, L), factor=L)
+
+
 def axis_twin(profile, axis: str, *, method: str = "pidd") -> AxisTwin:
     """The twin of one axis of a profile.
 
@@ -278,5 +351,6 @@ def axis_twin(profile, axis: str, *, method: str = "pidd") -> AxisTwin:
     prior, no learning intended), ``dd`` (no known uncertainty, zero prior mean, broad prior)."""
     tw = profile.twin
     mu, cov = axis_prior(profile, axis, method=method)
-    return AxisTwin(ir=axis_impulse(profile, axis), n2=tw.n2, n3=tw.n3,
-                    sigma2=tw.sigma_eps_mm ** 2, mu=mu, cov=cov, use_feature_var=method != "dd")
+    return AxisTwin(ir=twin_impulse(profile, axis, method=method), n2=tw.n2, n3=tw.n3,
+                    sigma2=axis_noise_mm(profile, axis, method=method) ** 2, mu=mu, cov=cov,
+                    use_feature_var=method != "dd")
