@@ -99,7 +99,7 @@ def main(argv=None):
                   f"{lg['savetxt_per_row_us']:.2f} us/row")
         return
 
-    from gcode_feedopt.cli.simulate import simulate_file
+    from gcode_feedopt.simulation import simulate_file
     from gcode_feedopt.profile import load_profile
 
     profile = load_profile(args.machine)

@@ -4,7 +4,8 @@ G-code -> firmware model (``vm.firmware``, Marlin or Klipper per profile) -> com
 trajectory -> plant (one seeded draw of the profile's FRFs plus ``--effect``s) -> metrics,
 an optional encoder log (``--log``) and JSON report (``--report``).
 
-``simulate_file`` does the same without click, for other stages (compare, closed loop).
+The command over ``gcode_feedopt.simulation`` (``simulate_file``), which other stages and
+the benchmarks call without click.
 """
 
 from __future__ import annotations
@@ -13,80 +14,12 @@ import json
 import os
 import sys
 import time
-from dataclasses import dataclass, field
 
 import click
 
+from ..simulation import CONTOUR_ON, simulate_file
 from ..vm import effects as fx
 from .options import SEED, TOLERANCE
-
-CONTOUR_ON = ("extrusion", "xy")
-
-
-@dataclass(frozen=True)
-class SimulationResult:
-    """Everything one simulated run produced.
-
-    Attributes:
-        trajectory: the firmware's commanded trajectory (``vm.trajectory.Trajectory``).
-        output: ``vm.plant.PlantOutput`` (actual and measured positions, impulse responses).
-        metrics: ``vm.metrics.Metrics``.
-        timings_s: stage -> wall-clock seconds (read, firmware, plant, metrics).
-    """
-
-    trajectory: object
-    output: object
-    metrics: object
-    timings_s: dict = field(default_factory=dict)
-
-
-def simulate_program(program, profile, *, seed: int = 0, effects=(), tol_mm: float | None = None,
-                     contour_on: str = "extrusion", nominal: bool = False) -> SimulationResult:
-    """Execute a read Program on the virtual machine; no files are opened."""
-    from ..vm import firmware
-
-    timings = {}
-    t0 = time.perf_counter()
-    trajectory = firmware.execute(program, profile)
-    timings["firmware"] = time.perf_counter() - t0
-    return simulate_trajectory(trajectory, profile, seed=seed, effects=effects, tol_mm=tol_mm,
-                               contour_on=contour_on, timings_s=timings, nominal=nominal)
-
-
-def simulate_trajectory(trajectory, profile, *, seed: int = 0, effects=(), tol_mm: float | None = None,
-                        contour_on: str = "extrusion", timings_s: dict | None = None,
-                        nominal: bool = False) -> SimulationResult:
-    """Run a commanded trajectory through the seeded plant and evaluate it."""
-    from ..vm import metrics
-    from ..vm.plant import Plant
-
-    timings = dict(timings_s or {})
-    tol = float(profile.limits.tolerance_mm if tol_mm is None else tol_mm)
-    t0 = time.perf_counter()
-    output = Plant(profile, seed=seed, effects=effects, nominal=nominal).simulate(trajectory)
-    timings["plant"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    result = metrics.evaluate(trajectory, output.actual_mm, tol, on=contour_on)
-    timings["metrics"] = time.perf_counter() - t0
-    return SimulationResult(trajectory=trajectory, output=output, metrics=result, timings_s=timings)
-
-
-def read_program(path, profile):
-    """Read a G-code file into a Program with the profile's firmware semantics."""
-    from ..pipeline import read_for
-
-    return read_for(path, profile)
-
-
-def simulate_file(path, profile, **kwargs) -> SimulationResult:
-    """Read ``path`` and ``simulate_program`` it; ``timings_s`` gains ``read``."""
-    t0 = time.perf_counter()
-    program = read_program(path, profile)
-    t_read = time.perf_counter() - t0
-    res = simulate_program(program, profile, **kwargs)
-    res.timings_s["read"] = t_read
-    return res
-
 
 #: largest |value| of an effect parameter (mm, Hz, s, scale): 1e308 ran and gave inf metrics
 MAX_EFFECT_ABS = 1e4
