@@ -200,7 +200,7 @@ def optimize_file(in_path, out_path, profile, opts: Options) -> Report:
         result = write(program, path, sched, profile, mode=opts.mode,
                        accel_mm_s2=writer_accel(path, profile, fw_limits, opts.amax_mm_s2),
                        cells=cells, clamp=clamp,
-                       settings=None if cells is None
+                       settings=None if cells is None and not firmware.raises_configured(profile)
                        else firmware.accel_settings(program, profile, clamp))
         wall["write"] = time.perf_counter() - t0
         t0 = time.perf_counter()
@@ -253,6 +253,15 @@ def optimize_file(in_path, out_path, profile, opts: Options) -> Report:
                                         "whole_file_checks", "samples_evaluated",
                                         "slowed_length_fraction", "compute_s", "solver_s")
                   if k in info}})
+    if result.plan_limit_lines:
+        fw_c = profile.firmware
+        conf = ", ".join(f"{k} {v:g}" for k, v in (
+            [("accel", fw_c.configured_accel_mm_s2)] if fw_c.configured_accel_mm_s2 else []) + (
+            [(f"max {a}", fw_c.configured_max_accel_mm_s2[a]) for a in "xy"]
+            if fw_c.configured_max_accel_mm_s2 and fw_c.flavour != "klipper" else []))
+        rep.notes.append(f"the file sets {' and '.join(result.plan_limit_lines)} before its first "
+                         f"move (the plan's limits; {profile.name}'s firmware is configured to "
+                         f"{conf} mm/s²) and the configured values again after its last")
     if program.lines and not program.lines[-1].endswith(b"\n"):
         rep.notes.append(f"the last line ({len(program.lines)}) has no line end: if the file was "
                          "cut short (an interrupted upload or copy), the print is incomplete; "

@@ -279,6 +279,20 @@ class AccelSettings:
     accel_travel_mm_s2: np.ndarray
     jerk_xy_mm_s: np.ndarray
     scv_mm_s: np.ndarray
+    #: (M, 2) M201 X, Y in force (Klipper: the profile's, which the file cannot change)
+    max_accel_xy_mm_s2: np.ndarray | None = None
+
+
+def raises_configured(profile) -> bool:
+    """The printer as configured (``firmware.configured_*``) runs lower acceleration limits
+    than the plan is timed with: the writer sets the plan's (gcode.writer._PlanLimits)."""
+    fw = profile.firmware
+    if fw.configured_accel_mm_s2 is not None and fw.configured_accel_mm_s2 < max(
+            fw.accel_mm_s2, fw.travel_accel_mm_s2):
+        return True
+    conf = fw.configured_max_accel_mm_s2
+    return conf is not None and fw.flavour != "klipper" and any(
+        conf[a] < fw.max_accel_mm_s2[a] for a in ("x", "y"))
 
 
 def accel_settings(program, profile, clamp=None) -> AccelSettings:
@@ -294,8 +308,9 @@ def accel_settings(program, profile, clamp=None) -> AccelSettings:
     if clamp is not None and klipper:
         acc_p = np.minimum(acc_p, clamp.want_mm_s2[:, 0])
         acc_t = np.minimum(acc_t, clamp.want_mm_s2[:, 0])
+    macc = np.array([[q.max_accel["x"], q.max_accel["y"]] for q in snaps]).reshape(-1, 2)[si]
     return AccelSettings(profile.firmware.flavour, acc_p, acc_t, jerk[si],
-                         np.array([q.scv for q in snaps])[si])
+                         np.array([q.scv for q in snaps])[si], macc)
 
 
 @dataclass(frozen=True)
