@@ -630,7 +630,7 @@ class _ClampState:
 class _PlanLimits:
     """The acceleration limits the plan is timed with, where the printer as its owner
     configured it runs lower ones (profile ``firmware.configured_*``): set before the first
-    re-timed move — Marlin ``M201 X Y`` then ``M204 P T``, Klipper ``SET_VELOCITY_LIMIT
+    re-timed move — Marlin ``M201 X Y`` then ``M204 P R T``, Klipper ``SET_VELOCITY_LIMIT
     ACCEL`` — with the values the firmware model has in force there (the profile's, then the
     file's own lines), and the configured values back after the last move. In between, the
     file's own settings and our slowed stretches start from what the plan assumed."""
@@ -659,8 +659,10 @@ class _PlanLimits:
                 if mx > conf_m["x"] or my > conf_m["y"]:
                     out.append(f"M201 X{_fmt(mx, 3)} Y{_fmt(my, 3)}".encode() + self._why(ending))
                     self.raised["max"] = True
-            if conf_a is not None and max(p, t) > conf_a:
-                out.append(f"M204 P{_fmt(p, 3)} T{_fmt(t, 3)}".encode() + self._why(ending))
+            r = p if st.accel_retract_mm_s2 is None else float(st.accel_retract_mm_s2[mi])
+            if conf_a is not None and max(p, t, r) > conf_a:
+                out.append(f"M204 P{_fmt(p, 3)} R{_fmt(r, 3)} T{_fmt(t, 3)}".encode()
+                           + self._why(ending))
                 self.raised["accel"] = True
         self.lines += len(out)
         self.set_lines = tuple(ln.split(b" ;")[0].decode() for ln in out)
@@ -685,7 +687,7 @@ class _PlanLimits:
                 out.append(f"M201 X{_fmt(c['x'], 3)} Y{_fmt(c['y'], 3)}".encode() + ending)
             if self.raised["accel"]:
                 a = _fmt(fw.configured_accel_mm_s2, 3)
-                out.append(f"M204 P{a} T{a}".encode() + ending)
+                out.append(f"M204 P{a} R{a} T{a}".encode() + ending)
         self.lines += len(out)
         return out
 

@@ -23,11 +23,10 @@ SHIPPED = load_profile("ender3pro")
 
 def stock(profile):
     """The same machine as its firmware starts: the configured limits in force."""
-    fw = profile.firmware
-    a = fw.configured_accel_mm_s2
-    m = dict(fw.max_accel_mm_s2, **fw.configured_max_accel_mm_s2)
-    return dataclasses.replace(profile, firmware=dataclasses.replace(
-        fw, accel_mm_s2=a, travel_accel_mm_s2=a, max_accel_mm_s2=m))
+    st = firmware.as_configured(profile)
+    assert st.firmware.accel_mm_s2 == st.firmware.travel_accel_mm_s2 == 500.0
+    assert (st.firmware.max_accel_mm_s2["x"], st.firmware.max_accel_mm_s2["y"]) == (500.0, 500.0)
+    return st
 
 
 def run(tmp_path, data: bytes, profile, method="kinematic"):
@@ -46,7 +45,8 @@ def test_stock_printer_runs_the_plan(tmp_path):
     rep, data = run(tmp_path, BUTTERFLY.read_bytes(), SHIPPED)
     lines = ours(data)
     assert [ln.split(b" ;")[0] for _, ln in lines] == [
-        b"M201 X3000 Y3000", b"M204 P3000 T3000", b"M201 X500 Y500", b"M204 P500 T500"]
+        b"M201 X3000 Y3000", b"M204 P3000 R3000 T3000", b"M201 X500 Y500",
+        b"M204 P500 R500 T500"]
     text = data.splitlines()
     moves = [k for k, ln in enumerate(text) if ln.startswith((b"G0 ", b"G1 "))]
     assert lines[1][0] < moves[0] and lines[2][0] == moves[-1] + 1
@@ -57,7 +57,12 @@ def test_stock_printer_runs_the_plan(tmp_path):
     # ... and without our lines it would not (the plan needs 3000 mm/s²)
     bare = b"".join(ln + b"\n" for ln in text if b"; gcode-feedopt:" not in ln)
     assert firmware.estimate_time_s(read_program(bare, "bare"), stock(SHIPPED)) > 1.2 * t_stock
-    assert any("sets M201 X3000 Y3000 and M204 P3000 T3000" in n for n in rep.notes)
+    assert any("sets M201 X3000 Y3000 and M204 P3000 R3000 T3000" in n for n in rep.notes)
+    # the summary times both files as the printer is configured
+    assert rep.output_time_s == pytest.approx(t_stock, rel=1e-9)
+    assert rep.input_time_s == pytest.approx(
+        firmware.estimate_time_s(read_program(BUTTERFLY.read_bytes(), "in"), stock(SHIPPED)))
+    assert rep.extra["input_time_profile_limits_s"] < rep.input_time_s
     # after the file the printer is as its owner configured it
     snaps, _ = firmware._limit_snapshots(out, SHIPPED, False)
     assert snaps[-1].accel_print == snaps[-1].accel_travel == 500.0
@@ -70,7 +75,7 @@ def test_lines_carry_what_the_file_set_before_its_first_move(tmp_path):
     src = BUTTERFLY.read_bytes().replace(b"G92 E0\n", b"G92 E0\nM204 P1500 T2500\n", 1)
     rep, data = run(tmp_path, src, SHIPPED)
     assert [ln.split(b" ;")[0] for _, ln in ours(data)][:2] == [b"M201 X3000 Y3000",
-                                                                 b"M204 P1500 T2500"]
+                                                                 b"M204 P1500 R3000 T2500"]
     t_stock = firmware.estimate_time_s(read_program(data, "out"), stock(SHIPPED))
     assert t_stock == pytest.approx(rep.output_time_s, rel=2e-3)
 
