@@ -18,7 +18,7 @@ import time
 
 import numpy as np
 
-from gcode_feedopt.closedloop.diagnose import diagnose_arrays, nominal_impulse
+from gcode_feedopt.closedloop.diagnose import axis_physics, diagnose_arrays
 from gcode_feedopt.closedloop.extend import extend_profile
 from gcode_feedopt.optimize.compare import run_method
 from gcode_feedopt.pipeline import path_for, read_for
@@ -52,7 +52,7 @@ def main():
     tr = vm_trajectory(path, sched.s_mm, sched.ts_s)
     meas = plant.simulate(tr).measured_mm
     # 2. diagnose
-    d = diagnose_arrays(tr.pos_mm, meas, prof.ts_s, nominal_impulse(prof))
+    d = diagnose_arrays(tr.pos_mm, meas, prof.ts_s, axis_physics(prof))
     print(f"hidden: {hidden.to_dict()}")
     print(f"named:  {d.effects}")
     print(f"held-out RMS before/after: {d.holdout_rms_mm}")

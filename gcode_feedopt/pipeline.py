@@ -200,7 +200,7 @@ def optimize_file(in_path, out_path, profile, opts: Options) -> Report:
         result = write(program, path, sched, profile, mode=opts.mode,
                        accel_mm_s2=writer_accel(path, profile, fw_limits, opts.amax_mm_s2),
                        cells=cells, clamp=clamp,
-                       settings=None if cells is None
+                       settings=None if cells is None and not firmware.raises_configured(profile)
                        else firmware.accel_settings(program, profile, clamp))
         wall["write"] = time.perf_counter() - t0
         t0 = time.perf_counter()
@@ -209,13 +209,19 @@ def optimize_file(in_path, out_path, profile, opts: Options) -> Report:
                              g91_relative_e=fw.g91_relative_e, name=str(out_path))
         wall["verify"] = time.perf_counter() - t0
         t0 = time.perf_counter()
-        fw_in = firmware.estimate_time_s(program, profile)
-        fw_out = firmware.estimate_time_s(out_program, profile)
+        # the printer as its owner configured it runs both files (the output sets the plan's
+        # limits itself, gcode.writer._PlanLimits); the input also at the profile's values,
+        # to tell the saving from raised limits apart from the plan's
+        configured = firmware.as_configured(profile)
+        fw_in = firmware.estimate_time_s(program, configured)
+        fw_out = firmware.estimate_time_s(out_program, configured)
+        fw_in_raised = (fw_in if configured is profile
+                        else firmware.estimate_time_s(program, profile))
         wall["firmware"] = time.perf_counter() - t0
     executed = None
     if sched.method != "kinematic":
         t0 = time.perf_counter()
-        executed = execute_check(out_program, profile,
+        executed = execute_check(out_program, configured,
                                  opts.tolerance_mm or profile.limits.tolerance_mm)
         wall["execute"] = time.perf_counter() - t0
     if opts.plot:
@@ -241,18 +247,31 @@ def optimize_file(in_path, out_path, profile, opts: Options) -> Report:
         moves=len(program.moves), moves_changed=result.moves_changed,
         lines_in=len(program.lines), lines_written=result.lines_written,
         input_time_s=fw_in, output_time_s=fw_out, plan_time_s=sched.duration_s,
-        time_source=f"{fw.flavour} firmware model",
+        time_source=f"{fw.flavour} firmware model"
+                    + (" as configured" if configured is not profile else ""),
         dry_run=opts.dry_run,
         predicted_max_contour_error_mm=info.get("predicted_max_contour_error_mm"),
         predicted_p95_contour_error_mm=info.get("predicted_p95_contour_error_mm"),
         stage_wall_s={k: round(v, 4) for k, v in wall.items()},
-        extra={"input_time_same_limits_s": t_in, "accel_lines": result.accel_lines,
+        extra={"input_time_same_limits_s": t_in, "input_time_profile_limits_s": fw_in_raised,
+               "accel_lines": result.accel_lines,
                **({"executed": executed} if executed is not None else {}),
                **{k: info[k] for k in ("optimizer", "window_status", "fallback_windows",
                                         "relaxed_windows", "relaxed_samples", "rounds",
                                         "whole_file_checks", "samples_evaluated",
                                         "slowed_length_fraction", "compute_s", "solver_s")
                   if k in info}})
+    if result.plan_limit_lines:
+        fw_c = profile.firmware
+        conf = ", ".join(f"{k} {v:g}" for k, v in (
+            [("accel", fw_c.configured_accel_mm_s2)] if fw_c.configured_accel_mm_s2 else []) + (
+            [(f"max {a}", fw_c.configured_max_accel_mm_s2[a]) for a in "xy"]
+            if fw_c.configured_max_accel_mm_s2 and fw_c.flavour != "klipper" else []))
+        rep.notes.append(f"the file sets {' and '.join(result.plan_limit_lines)} before its first "
+                         f"move (the plan's limits; {profile.name}'s firmware is configured to "
+                         f"{conf} mm/s²) and the configured values again after its last; the "
+                         f"input alone would take {fw_in_raised:.1f} s at those limits, "
+                         f"{fw_in:.1f} s as configured")
     if program.lines and not program.lines[-1].endswith(b"\n"):
         rep.notes.append(f"the last line ({len(program.lines)}) has no line end: if the file was "
                          "cut short (an interrupted upload or copy), the print is incomplete; "

@@ -82,3 +82,17 @@ def test_in_place_edit_is_atomic_and_refuses_on_error(tmp_path):
 def test_unknown_machine_suggests():
     res = CliRunner().invoke(cli, ["x.gcode", "--machine", "ender3"])
     assert res.exit_code != 0 and "did you mean 'ender3pro'" in res.output
+
+
+def test_closed_stdout_is_not_an_internal_error():
+    """`gcode-feedopt profile show P | head -1`: the reader goes away; we stop quietly and
+    non-zero (click's exit 1 for EPIPE), never with "internal error"."""
+    import subprocess
+    import sys
+
+    p = subprocess.Popen([sys.executable, "-m", "gcode_feedopt", "profile", "show",
+                          "ender3pro"], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    p.stdout.close()  # before the command writes (it is still importing)
+    err = p.stderr.read()
+    assert p.wait() in (1, 141), err
+    assert b"internal error" not in err and b"Traceback" not in err

@@ -71,6 +71,16 @@ def test_profile_build_show_check(tmp_path):
     assert r.exit_code == 0, r.output
     q = load_profile(out)
     assert q.axes["x"].frf.n_measurements == 3 and q.limits == p.limits
+    # its own name and description, not the base's
+    assert q.name == "plant" and "built from measured FRFs" in q.description
+    r = CliRunner().invoke(cli, ["profile", "build", "--frf-x", *files, "--name", "mine",
+                                 "--description", "my Ender, belts tightened", "-o", str(out)])
+    assert r.exit_code == 0, r.output
+    q = load_profile(out)
+    assert (q.name, q.description) == ("mine", "my Ender, belts tightened")
+    r = CliRunner().invoke(cli, ["profile", "build", "--help"])
+    for opt in ("--frf-x", "--frf-y", "--base", "--name", "--description", "--output"):
+        assert opt in r.output
     r = CliRunner().invoke(cli, ["profile", "show", str(out), "--json"])
     d = json.loads(r.output)
     assert d["axes"]["x"]["frf_measurements"] == 3

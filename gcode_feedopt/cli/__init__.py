@@ -97,8 +97,8 @@ class FeedOptGroup(click.Group):
         except FeedOptError as exc:
             _error(str(exc))
             ctx.exit(exc.exit_code)
-        except (click.exceptions.Exit, click.ClickException, click.Abort):
-            raise
+        except (click.exceptions.Exit, click.ClickException, click.Abort, BrokenPipeError):
+            raise  # BrokenPipeError: the reader of stdout went away (main exits quietly)
         except MemoryError:
             _error("out of memory; the file is too long for this machine's memory: split it, "
                    "or use --method kinematic (the smallest plan)")

@@ -22,14 +22,16 @@ def profile():
 def _parse_build_args(args):
     """``--frf-x A.csv B.csv ... --frf-y C.csv ... [--base P] [--name N] -o OUT`` (the file
     lists run until the next option, as the issue's command line writes them)."""
-    opts = {"frf_x": [], "frf_y": [], "base": "ender3pro", "name": None, "output": None}
+    opts = {"frf_x": [], "frf_y": [], "base": "ender3pro", "name": None, "description": None,
+            "output": None}
     cur = None
     it = iter(args)
     for tok in it:
         if tok in ("--frf-x", "--frf-y"):
             cur = opts["frf_x"] if tok == "--frf-x" else opts["frf_y"]
-        elif tok in ("--base", "--name", "-o", "--output"):
-            key = {"--base": "base", "--name": "name", "-o": "output", "--output": "output"}[tok]
+        elif tok in ("--base", "--name", "--description", "-o", "--output"):
+            key = {"--base": "base", "--name": "name", "--description": "description",
+                   "-o": "output", "--output": "output"}[tok]
             try:
                 opts[key] = next(it)
             except StopIteration:
@@ -55,7 +57,16 @@ def build(args):
 
     \b
     gcode-feedopt profile build --frf-x A.csv B.csv ... --frf-y C.csv ... [--base ender3pro]
-                                [--name NAME] -o plant.yaml
+                                [--name NAME] [--description TEXT] -o plant.yaml
+
+    \b
+    Options (each file list runs to the next option):
+      --frf-x FILE...     X's FRF CSVs (header freq_hz,real,imag), one measurement each
+      --frf-y FILE...     Y's FRF CSVs
+      --base PROFILE      limits, firmware and twin settings from this profile [ender3pro]
+      --name NAME         the new profile's name [the output file's stem]
+      --description TEXT  its description [built from measured FRFs on BASE limits]
+      -o, --output OUT    the YAML to write (required)
     """
     o = _parse_build_args(args)
     frf_x, frf_y, base, name = o["frf_x"], o["frf_y"], o["base"], o["name"]
@@ -65,7 +76,7 @@ def build(args):
     base_p = load_profile(base)
     check_profile_output(output, "-o", [*frf_x, *frf_y, *profile_files(base)])
     new, lines = build_from_frfs(base_p, {"x": frf_x, "y": frf_y},
-                                 name=name or output.stem)
+                                 name=name or output.stem, description=o["description"])
     for line in lines:
         click.echo(f"profile build: {line}", err=True)
     save_profile(new, output)

@@ -47,7 +47,10 @@ part. A candidate is named only if all hold:
   ≥ ``MIN_EFFECT_RMS_MM`` RMS (model error that small is below anything a tolerance sees).
 
 α = ``ALPHA``. Up to ``MAX_EFFECTS`` effects are named greedily, each round on what the model
-with the named ones leaves. Friction and backlash shift the steady motion alike (a play of width
+with the named ones leaves. Among the passing candidates, those whose fit-part SS is within
+crit_fit units of the leader's noise (SS_fit/N_eff) — the fit part cannot tell them apart, as
+on steady motion where a delay, a friction and a backlash are one constant lag — are told
+apart by the held-out part: the one explaining most of it is named. Friction and backlash shift the steady motion alike (a play of width
 b lags like a friction lag b/2); if the other one is not significantly worse on the held-out part
 (the same held-out statistic between the two), the effect carries a stated ``tie`` with the other
 kind's parameter.
@@ -710,9 +713,18 @@ def diagnose_arrays(cmd_mm: np.ndarray, meas_mm: np.ndarray, ts_s: float, impuls
         cands.sort(key=lambda c: -c.explained_fit)
         if round_ == 0:
             all_cands = cands
-        pick = next((c for c in cands if c.passes), None)
-        if pick is None:
+        passing = [c for c in cands if c.passes]
+        if not passing:
             break
+        pick = passing[0]
+        # candidates the fit part cannot tell from the leader (their ΔSS below the bar an
+        # effect must clear, crit_fit in units of the leader's noise: e.g. a delay, a friction
+        # and a backlash are all a constant lag on a stretch of steady motion) are told apart
+        # by the held-out part, which none was fitted on
+        ne_f = _n_eff(pick.model.resid[fit])
+        noise_f = pick.ss_fit / max(ne_f, 1e-30)
+        tied = [c for c in passing if (c.ss_fit - pick.ss_fit) <= c.crit_fit * noise_f]
+        pick = max(tied, key=lambda c: c.explained_hold)
         if pick.kind in ("friction", "backlash"):
             rival = next((c for c in cands if c.axis == pick.axis and c.kind ==
                           ("backlash" if pick.kind == "friction" else "friction")), None)

@@ -72,6 +72,8 @@ class WriteResult:
     sub_moves: int
     #: lines written to set and restore the firmware's acceleration around slowed stretches
     accel_lines: int = 0
+    #: the lines that set the plan's limits on a printer configured lower (``_PlanLimits``)
+    plan_limit_lines: tuple = ()
 
 
 def _ending(line: bytes) -> bytes:
@@ -625,6 +627,71 @@ class _ClampState:
         return [self._line(file, ending)]
 
 
+class _PlanLimits:
+    """The acceleration limits the plan is timed with, where the printer as its owner
+    configured it runs lower ones (profile ``firmware.configured_*``): set before the first
+    re-timed move — Marlin ``M201 X Y`` then ``M204 P R T``, Klipper ``SET_VELOCITY_LIMIT
+    ACCEL`` — with the values the firmware model has in force there (the profile's, then the
+    file's own lines), and the configured values back after the last move. In between, the
+    file's own settings and our slowed stretches start from what the plan assumed."""
+
+    def __init__(self, fw, settings):
+        self.fw, self.st = fw, settings
+        self.klipper = fw.flavour == "klipper"
+        self.done = False
+        self.raised = {"max": False, "accel": False}
+        self.lines = 0
+
+    def before_first(self, mi: int, ending: bytes) -> list[bytes]:
+        if self.done:
+            return []
+        self.done = True
+        st, fw, out = self.st, self.fw, []
+        conf_a, conf_m = fw.configured_accel_mm_s2, fw.configured_max_accel_mm_s2
+        p, t = float(st.accel_print_mm_s2[mi]), float(st.accel_travel_mm_s2[mi])
+        if self.klipper:
+            if conf_a is not None and p > conf_a:
+                out.append(f"SET_VELOCITY_LIMIT ACCEL={_fmt(p, 3)}".encode() + self._why(ending))
+                self.raised["accel"] = True
+        else:
+            if conf_m is not None and st.max_accel_xy_mm_s2 is not None:
+                mx, my = (float(v) for v in st.max_accel_xy_mm_s2[mi])
+                if mx > conf_m["x"] or my > conf_m["y"]:
+                    out.append(f"M201 X{_fmt(mx, 3)} Y{_fmt(my, 3)}".encode() + self._why(ending))
+                    self.raised["max"] = True
+            r = p if st.accel_retract_mm_s2 is None else float(st.accel_retract_mm_s2[mi])
+            if conf_a is not None and max(p, t, r) > conf_a:
+                out.append(f"M204 P{_fmt(p, 3)} R{_fmt(r, 3)} T{_fmt(t, 3)}".encode()
+                           + self._why(ending))
+                self.raised["accel"] = True
+        self.lines += len(out)
+        self.set_lines = tuple(ln.split(b" ;")[0].decode() for ln in out)
+        return out
+
+    set_lines: tuple = ()
+
+    @staticmethod
+    def _why(ending: bytes) -> bytes:
+        return b" ; gcode-feedopt: the limits the plan is timed with" + ending
+
+    def restore(self, ending: bytes) -> list[bytes]:
+        fw, out = self.fw, []
+        ending = b" ; gcode-feedopt: the printer's configured limits again" + ending
+        if self.klipper:
+            if self.raised["accel"]:
+                out.append(f"SET_VELOCITY_LIMIT ACCEL={_fmt(fw.configured_accel_mm_s2, 3)}".encode()
+                           + ending)
+        else:
+            if self.raised["max"]:
+                c = fw.configured_max_accel_mm_s2
+                out.append(f"M201 X{_fmt(c['x'], 3)} Y{_fmt(c['y'], 3)}".encode() + ending)
+            if self.raised["accel"]:
+                a = _fmt(fw.configured_accel_mm_s2, 3)
+                out.append(f"M204 P{a} R{a} T{a}".encode() + ending)
+        self.lines += len(out)
+        return out
+
+
 #: a planned segment is written as one line at its peak speed when the plan's acceleration is
 #: the firmware's within this fraction (slow-down cells scaled by r ≥ SCALE_OVERRIDE_BELOW)
 PEAK_ACCEL_MATCH = 0.005
@@ -809,6 +876,11 @@ def write(program: Program, path: Path, schedule: Schedule, profile, *, mode: st
     last_new = -1  # index in ``out`` after the last re-timed line
     clamp_state = _ClampState(clamp) if clamp is not None else None
     last_mi = -1  # the last move (for the clamp's restore)
+    fw_conf = profile.firmware
+    plan_limits = (_PlanLimits(fw_conf, settings) if settings is not None and (
+        fw_conf.configured_accel_mm_s2 is not None or fw_conf.configured_max_accel_mm_s2 is not None)
+        else None)
+    last_move = -1  # the last move (for the plan limits' restore)
 
     out: list[bytes] = []
     tags: list = []
@@ -842,6 +914,13 @@ def write(program: Program, path: Path, schedule: Schedule, profile, *, mode: st
                 tags.extend([(T_ACCEL, -1)] * len(lines))
                 if lines and clamp_state is not None and acc_state.klipper and mi is not None:
                     clamp_state.set_to_want(mi)
+        if mi is not None:
+            last_move = mi
+            if (plan_limits is not None and not plan_limits.done
+                    and seg_of_move.get(mi) is not None and not moves[mi].fixed):
+                lines = plan_limits.before_first(mi, _ending(raw) or first_ending)
+                out.extend(lines)
+                tags.extend([(T_ACCEL, -1)] * len(lines))
         if mi is not None and clamp_state is not None:
             lines = clamp_state.before_move(mi, _ending(raw) or first_ending)
             out.extend(lines)
@@ -961,9 +1040,24 @@ def write(program: Program, path: Path, schedule: Schedule, profile, *, mode: st
         out[last_new:last_new] = lines
         tags[last_new:last_new] = [(T_ACCEL, -1)] * len(lines)
         accel_lines += acc_state.lines
+    if plan_limits is not None and plan_limits.done and last_move >= 0:
+        # the printer's configured limits back after the last motion line and what restores
+        # the file's own and the slowed stretches' settings there
+        last_line = moves[last_move].line_no
+        at = len(tags)
+        while at > 0 and not (tags[at - 1] == (T_NEW, last_move)
+                              or tags[at - 1] == (T_ORIG, last_line)):
+            at -= 1
+        while at < len(tags) and tags[at] == (T_ACCEL, -1):
+            at += 1
+        lines = plan_limits.restore(first_ending)
+        out[at:at] = lines
+        tags[at:at] = [(T_ACCEL, -1)] * len(lines)
+        accel_lines += plan_limits.lines
     return WriteResult(data=b"".join(out), tags=tags, lines_written=len(out),
                        moves_changed=moves_changed, sub_moves=sub_moves,
-                       accel_lines=accel_lines)
+                       accel_lines=accel_lines,
+                       plan_limit_lines=plan_limits.set_lines if plan_limits is not None else ())
 
 
 def _feed_only(raw: bytes) -> float | None:

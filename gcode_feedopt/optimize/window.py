@@ -32,6 +32,8 @@ warm-started and updated in place when the sparsity pattern is unchanged).
 
 from __future__ import annotations
 
+import os
+import sys
 import time
 from dataclasses import dataclass, field
 
@@ -352,8 +354,18 @@ def _highs():
         except ImportError:  # pragma: no cover - highspy is a dependency
             _HIGHS = False
             return None
-        h = highspy.Highs()
-        h.setOptionValue("output_flag", False)
+        # HiGHS prints its banner to the process's stdout while it is constructed, before
+        # output_flag can be set: stdout is ours (``-o -``, tables), so the banner goes nowhere
+        sys.stdout.flush()
+        saved = os.dup(1)
+        try:
+            with open(os.devnull, "wb") as null:
+                os.dup2(null.fileno(), 1)
+                h = highspy.Highs()
+                h.setOptionValue("output_flag", False)
+        finally:
+            os.dup2(saved, 1)
+            os.close(saved)
         h.setOptionValue("solver", "simplex")
         _HIGHS = h
     return _HIGHS or None

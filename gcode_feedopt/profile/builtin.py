@@ -102,7 +102,8 @@ def ender3pro() -> MachineProfile:
         max_accel_mm_s2={"x": 3000.0, "y": 3000.0, "z": 100.0, "e": 5000.0},
         max_feed_mm_s={"x": 500.0, "y": 500.0, "z": 5.0, "e": 25.0},
         junction_deviation_mm=0.013, square_corner_velocity_mm_s=5.0, minimum_cruise_ratio=0.5,
-        mm_per_arc_segment=1.0, max_lines_per_s=300.0, retract_mm=3.0, retract_speed_mm_s=45.0)
+        mm_per_arc_segment=1.0, max_lines_per_s=300.0, retract_mm=3.0, retract_speed_mm_s=45.0,
+        configured_accel_mm_s2=500.0, configured_max_accel_mm_s2={"x": 500.0, "y": 500.0})
     axes = {
         "x": _axis([Mode(42.0, 0.10, 0.55), Mode(54.0, 0.08, 0.45)], 3101,
                    "Ender 3 Klipper spectra ../shared/data/measured/ender3_resonances_x_*.csv "
@@ -120,8 +121,9 @@ def ender3pro() -> MachineProfile:
             "limits": "Kim & Okwudire Sec. 6.1: V_max 70 mm/s, A_max 3 m/s^2, E_max 0.1 mm, eta 95 %",
             "firmware": "Marlin 2 defaults of the Ender-3 Pro configuration for feed (X/Y 500, Z 5, "
                         "E 25 mm/s) and firmware retraction (3 mm at 45 mm/s); the stock firmware "
-                        "limits X/Y acceleration to 500 mm/s^2: this profile assumes M201/M204 raised "
-                        "to 3000 mm/s^2 (the paper's A_max) so the firmware can follow the plan. "
+                        "limits X/Y acceleration to 500 mm/s^2 (configured_*): the plan is timed at "
+                        "3000 mm/s^2 (the paper's A_max), which the written file sets with M201/M204 "
+                        "before its first re-timed move and takes back to 500 after its last. "
                         "Junction deviation 0.013 mm (Marlin 2 default). max_lines_per_s 300: "
                         "115200-baud serial carries ~11.5 kB/s, ~35 bytes per G1 line.",
             "frf": "modelled (no measured FRF set of this machine is public); see axes.*.provenance",

@@ -226,6 +226,11 @@ def parse_profile(data, origin: str, base_dir: pathlib.Path | None) -> MachinePr
         retract_speed_mm_s=fs.getfloat("retract_speed_mm_s", 30.0, above=0, maxval=1000),
         instantaneous_corner_velocity_mm_s=fs.getfloat("instantaneous_corner_velocity_mm_s",
                                                        1.0, minval=0, maxval=1000),
+        configured_accel_mm_s2=fs.getfloat("configured_accel_mm_s2", None, above=0, maxval=1e6,
+                                           allow_none=True),
+        configured_max_accel_mm_s2=(_axis_dict(fs, "configured_max_accel_mm_s2", ("x", "y"),
+                                               above=0, maxval=1e6)
+                                    if fs.has("configured_max_accel_mm_s2") else None),
     )
     fs.check_unknown()
     axs = top.section("axes")
@@ -331,6 +336,10 @@ def profile_to_dict(profile: MachineProfile, frf_paths: dict | None = None) -> d
     }
     if F.flavour == "klipper":
         d["firmware"]["instantaneous_corner_velocity_mm_s"] = F.instantaneous_corner_velocity_mm_s
+    if F.configured_accel_mm_s2 is not None:
+        d["firmware"]["configured_accel_mm_s2"] = F.configured_accel_mm_s2
+    if F.configured_max_accel_mm_s2 is not None:
+        d["firmware"]["configured_max_accel_mm_s2"] = dict(F.configured_max_accel_mm_s2)
     if T.priors:
         d["twin"]["priors"] = {a: _prior_to_yaml(p) for a, p in T.priors.items()}
     for a, ax in profile.axes.items():

@@ -54,6 +54,12 @@ class Firmware:
         retract_mm, retract_speed_mm_s: firmware retraction (G10/G11).
         instantaneous_corner_velocity_mm_s: Klipper's extruder instantaneous_corner_velocity:
             at a junction the extruder's speed changes by at most this (Klipper's default 1).
+        configured_accel_mm_s2, configured_max_accel_mm_s2: what the printer's firmware is
+            configured to before a file runs, where that is below the values above (which
+            the plan is timed with): M204 P/T and M201 X/Y (Klipper: its one accel; None:
+            the firmware runs the values above). The writer then sets the values above
+            before the first re-timed move and restores these after the last one, so a
+            printer as its owner configured it runs what was planned.
     """
 
     flavour: str
@@ -70,6 +76,8 @@ class Firmware:
     retract_mm: float
     retract_speed_mm_s: float
     instantaneous_corner_velocity_mm_s: float = 1.0
+    configured_accel_mm_s2: float | None = None
+    configured_max_accel_mm_s2: dict | None = None
 
 
 @dataclass(frozen=True)

@@ -25,6 +25,7 @@ file apply from that line on.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -279,6 +280,38 @@ class AccelSettings:
     accel_travel_mm_s2: np.ndarray
     jerk_xy_mm_s: np.ndarray
     scv_mm_s: np.ndarray
+    #: (M, 2) M201 X, Y in force (Klipper: the profile's, which the file cannot change)
+    max_accel_xy_mm_s2: np.ndarray | None = None
+    #: (M,) M204 R in force (Marlin's E-only moves; Klipper ignores M204 R)
+    accel_retract_mm_s2: np.ndarray | None = None
+
+
+def as_configured(profile):
+    """The profile with the firmware's starting values as the printer is configured
+    (``firmware.configured_*``): what a file runs with until it sets its own. The same
+    profile when it states no configuration (the printer runs the profile's values)."""
+    fw = profile.firmware
+    if fw.configured_accel_mm_s2 is None and fw.configured_max_accel_mm_s2 is None:
+        return profile
+    changes = {}
+    if fw.configured_accel_mm_s2 is not None:
+        changes.update(accel_mm_s2=fw.configured_accel_mm_s2,
+                       travel_accel_mm_s2=fw.configured_accel_mm_s2)
+    if fw.configured_max_accel_mm_s2 is not None and fw.flavour != "klipper":
+        changes["max_accel_mm_s2"] = dict(fw.max_accel_mm_s2, **fw.configured_max_accel_mm_s2)
+    return dataclasses.replace(profile, firmware=dataclasses.replace(fw, **changes))
+
+
+def raises_configured(profile) -> bool:
+    """The printer as configured (``firmware.configured_*``) runs lower acceleration limits
+    than the plan is timed with: the writer sets the plan's (gcode.writer._PlanLimits)."""
+    fw = profile.firmware
+    if fw.configured_accel_mm_s2 is not None and fw.configured_accel_mm_s2 < max(
+            fw.accel_mm_s2, fw.travel_accel_mm_s2):
+        return True
+    conf = fw.configured_max_accel_mm_s2
+    return conf is not None and fw.flavour != "klipper" and any(
+        conf[a] < fw.max_accel_mm_s2[a] for a in ("x", "y"))
 
 
 def accel_settings(program, profile, clamp=None) -> AccelSettings:
@@ -294,8 +327,10 @@ def accel_settings(program, profile, clamp=None) -> AccelSettings:
     if clamp is not None and klipper:
         acc_p = np.minimum(acc_p, clamp.want_mm_s2[:, 0])
         acc_t = np.minimum(acc_t, clamp.want_mm_s2[:, 0])
+    macc = np.array([[q.max_accel["x"], q.max_accel["y"]] for q in snaps]).reshape(-1, 2)[si]
     return AccelSettings(profile.firmware.flavour, acc_p, acc_t, jerk[si],
-                         np.array([q.scv for q in snaps])[si])
+                         np.array([q.scv for q in snaps])[si], macc,
+                         np.array([q.accel_retract for q in snaps])[si])
 
 
 @dataclass(frozen=True)

@@ -144,3 +144,15 @@ def test_osqp_update_keeps_the_pattern(mode40):
     w2 = win.WindowData(**{**w.__dict__, "tol_mm": 0.04})
     win.solve_window(w2, solver="osqp", osqp_solver=slv)
     assert slv._prob is first
+
+
+def test_no_solver_banner_on_stdout():
+    """HiGHS prints "Running HiGHS ..." on the process's stdout when constructed; stdout is
+    the user's (tables, `-o -`): nothing of it may appear there."""
+    import subprocess
+    import sys
+
+    code = ("from gcode_feedopt.optimize import window; "
+            "assert window._highs() is not None; print('done')")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, check=True)
+    assert out.stdout == b"done\n"
