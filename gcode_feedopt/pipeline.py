@@ -19,8 +19,11 @@ from .gcode.writer import write, write_trajectory_csv
 from .plan.kinematic import effective_limits, plan_kinematic, plan_trapezoids, writer_accel
 from .inputs import check_input
 from .outputs import check_outputs, output_file, output_path, write_bytes
+from .plot import plot_run
 from .report import Report
 from .vm import firmware
+from .vm.metrics import evaluate
+from .vm.plant import Plant
 
 METHODS = ("kinematic", "conservative", "pb", "dd", "pidd", "oracle")
 #: file types --plot can write (matplotlib's format from the suffix)
@@ -131,9 +134,6 @@ def execute_check(out_program, profile, tol_mm: float) -> dict:
     """End to end: the written G-code run by the firmware model and the profile's nominal
     plant (no unknown effects): executed time and contour error, to set against the plan's
     time and predicted contour error in the report."""
-    from .vm.metrics import evaluate
-    from .vm.plant import Plant
-
     tr = firmware.execute(out_program, profile)
     out = Plant(profile, seed=0, nominal=True).simulate(tr)
     # every figure over the samples the metric judges (extruding ones), like the plan's
@@ -225,8 +225,6 @@ def optimize_file(in_path, out_path, profile, opts: Options) -> Report:
                                  opts.tolerance_mm or profile.limits.tolerance_mm)
         wall["execute"] = time.perf_counter() - t0
     if opts.plot:
-        from .plot import plot_run
-
         with output_path(targets["--plot"]) as tmp:
             plot_run(path, sched, tmp, title=f"{in_path.name}: {sched.method} on {profile.name}",
                      tolerance_mm=opts.tolerance_mm or profile.limits.tolerance_mm,

@@ -8,7 +8,10 @@ import sys
 
 import click
 
+from ..hosts.batch import find_jobs, run_batch, table
 from ..pipeline import METHODS
+from ..procs import signal_name
+from ..profile import load_profile
 from .options import AMAX, STRINGENCY, TOLERANCE, VMAX
 
 
@@ -35,9 +38,6 @@ from .options import AMAX, STRINGENCY, TOLERANCE, VMAX
 def batch(folder, outdir, jobs, machine, method, tolerance, stringency, vmax, amax, mode,
           use_slicer_feed, force):
     """Optimize every G-code file in FOLDER; print a summary table; exit 1 if any failed."""
-    from ..hosts.batch import find_jobs, run_batch, table
-    from ..profile import load_profile
-
     load_profile(machine)  # a bad machine fails once, here, not once per file
     opts = {"method": method, "tolerance_mm": tolerance, "stringency": stringency,
             "vmax_mm_s": vmax, "amax_mm_s2": amax, "mode": mode,
@@ -57,8 +57,6 @@ def batch(folder, outdir, jobs, machine, method, tolerance, stringency, vmax, am
     click.echo(table(results))
     failed = [r for r in results if r.status == "failed"]
     if signum is not None:
-        from ..procs import signal_name
-
         stopped = sum(r.status == "interrupted" for r in results)
         click.echo(f"gcode-feedopt: batch stopped by {signal_name(signum)}: {stopped} of "
                    f"{len(results)} files not written (untouched), {len(failed)} failed", err=True)

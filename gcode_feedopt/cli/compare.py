@@ -10,7 +10,13 @@ import time
 
 import click
 
-from .options import AMAX, SEED, STRINGENCY, TOLERANCE, VMAX
+from ..inputs import check_input
+from ..outputs import check_outputs, output_file, output_path
+from ..pipeline import PLOT_SUFFIXES, check_plan_size, path_for, read_for
+from ..plot import plot_compare
+from ..profile import load_profile
+from ..vm.plant import Plant
+from .options import AMAX, SEED, STRINGENCY, TOLERANCE, VMAX, profile_files
 from .simulate import _parse_effects
 
 COLUMNS = (("method", "method", "{}"), ("cycle_time_s", "cycle s", "{:.3f}"),
@@ -72,14 +78,9 @@ def compare(gcode, machine, methods, seed, effects, nominal, tolerance, stringen
     """
     from pathlib import Path
 
+    # heavy stages imported on use: `gcode-feedopt --help` imports every command module
     from ..optimize import METHODS
     from ..optimize.compare import run_compare
-    from ..inputs import check_input
-    from ..outputs import check_outputs, output_file, output_path
-    from ..pipeline import PLOT_SUFFIXES, check_plan_size, path_for, read_for
-    from ..profile import load_profile
-    from ..vm.plant import Plant
-    from .options import profile_files
 
     chosen = [m.strip() for m in methods.split(",") if m.strip()]
     bad = [m for m in chosen if m not in METHODS]
@@ -116,8 +117,6 @@ def compare(gcode, machine, methods, seed, effects, nominal, tolerance, stringen
                        "online": not offline, "rows": rows}, fh, indent=2)
             fh.write("\n")
     if png:
-        from ..plot import plot_compare
-
         with output_path(targets["--plot"]) as tmp:
             plot_compare(runs, tmp, tolerance_mm=tol,
                          title=f"{os.path.basename(gcode)} on {profile.name}, η {eta}")

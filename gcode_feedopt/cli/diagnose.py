@@ -7,7 +7,13 @@ import json
 
 import click
 
-from .options import Bounded
+from ..closedloop.diagnose_plot import plot_diagnosis
+from ..inputs import check_input
+from ..outputs import check_outputs, output_path, write_text
+from ..pipeline import PLOT_SUFFIXES
+from ..profile import load_profile
+from ..profile.io import check_profile_output, save_profile
+from .options import Bounded, profile_files
 
 
 @click.command("diagnose")
@@ -32,15 +38,9 @@ def diagnose(log_path, machine, json_path, plot_path, fit_fraction, out_profile,
     gcode-feedopt diagnose --machine ender3pro part.csv --json d.json --plot d.png
     gcode-feedopt diagnose -m ender3pro part.csv -o extended.yaml   (then optimize -m extended.yaml)
     """
+    # heavy stages imported on use: `gcode-feedopt --help` imports every command module
     from ..closedloop.diagnose import diagnose_log
     from ..closedloop.logs import load_log
-    from ..profile import load_profile
-
-    from ..inputs import check_input
-    from ..outputs import check_outputs, output_path, write_text
-    from ..pipeline import PLOT_SUFFIXES
-    from ..profile.io import check_profile_output
-    from .options import profile_files
 
     profile = load_profile(machine)
     check_input(log_path)
@@ -82,15 +82,12 @@ def diagnose(log_path, machine, json_path, plot_path, fit_fraction, out_profile,
     if out_profile:
         import dataclasses
 
-        from ..closedloop.extend import extend_profile
-        from ..profile.io import save_profile
+        from ..closedloop.extend import extend_profile  # on use, as above
 
         ext = extend_profile(profile, d.effects, source=str(log_path))
         ext = dataclasses.replace(ext, name=ext.name + "-extended")
         save_profile(ext, out_profile)
         click.echo(f"wrote {out_profile}")
     if plot_path:
-        from ..closedloop.diagnose_plot import plot_diagnosis
-
         with output_path(targets["--plot"]) as tmp:
             plot_diagnosis(tmp, d, log.ts_s, title=str(log_path))

@@ -16,6 +16,7 @@ import click
 
 from ..identify.axis import identify_axis
 from ..identify.excitation import GENERATORS
+from ..identify.identify_plot import plot_fits
 from ..inputs import check_input
 from ..outputs import check_outputs, output_path
 from ..pipeline import PLOT_SUFFIXES
@@ -100,8 +101,6 @@ def identify(x_files, y_files, base, n_modes, output, plot_path, excitation, fre
     save_profile(new, out)
     click.echo(f"wrote {out}")
     if plot_path:
-        from ..identify.identify_plot import plot_fits
-
         with output_path(plot_t) as tmp:
             plot_fits(tmp, panels)
         click.echo(f"wrote {plot_path}")

@@ -5,6 +5,12 @@ from __future__ import annotations
 
 import click
 
+from ..errors import LogError
+from ..inputs import check_input
+from ..profile import load_profile
+from ..profile.io import check_profile_output, save_profile
+from .options import profile_files
+
 
 @click.command("learn")
 @click.argument("logs", metavar="LOG...", nargs=-1, required=True,
@@ -19,15 +25,9 @@ def learn(logs, machine, out_path, skip_bad):
     \b
     gcode-feedopt learn --machine ender3pro part1.csv part2.csv -o updated.yaml
     """
+    # heavy stages imported on use: `gcode-feedopt --help` imports every command module
     from ..closedloop.learn import learn_logs
     from ..closedloop.logs import load_log
-    from ..errors import LogError
-    from ..profile import load_profile
-    from ..profile.io import save_profile
-
-    from ..inputs import check_input
-    from ..profile.io import check_profile_output
-    from .options import profile_files
 
     profile = load_profile(machine)
     for path in logs:

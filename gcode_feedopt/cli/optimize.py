@@ -8,7 +8,9 @@ import sys
 import click
 
 from ..errors import FeedOptError
-from ..pipeline import METHODS, Options, optimize_file
+from ..hosts import prusaslicer
+from ..outputs import write_text
+from ..pipeline import METHODS, Options, check_run_outputs, optimize_file
 from ..profile import load_profile
 from .options import AMAX, STRINGENCY, TOLERANCE, VMAX, profile_files
 
@@ -48,8 +50,6 @@ from .options import AMAX, STRINGENCY, TOLERANCE, VMAX, profile_files
 def optimize(gcode, output, machine, method, tolerance, stringency, vmax, amax, mode,
              use_slicer_feed, trajectory, report_path, plot_path, dry_run, force, quiet):
     """Re-time GCODE for MACHINE and write it (in place without -o)."""
-    from ..hosts import prusaslicer
-
     in_slicer = prusaslicer.running_in_slicer()
     try:
         _run(gcode, output, machine, method, tolerance, stringency, vmax, amax, mode,
@@ -64,10 +64,6 @@ def optimize(gcode, output, machine, method, tolerance, stringency, vmax, amax, 
 
 def _run(gcode, output, machine, method, tolerance, stringency, vmax, amax, mode,
          use_slicer_feed, trajectory, report_path, plot_path, dry_run, force, quiet, in_slicer):
-    from ..hosts import prusaslicer
-    from ..outputs import write_text
-    from ..pipeline import check_run_outputs
-
     opts = Options(method=method, tolerance_mm=tolerance, stringency=stringency, vmax_mm_s=vmax,
                    amax_mm_s2=amax, mode=mode, use_slicer_feed=use_slicer_feed, force=force,
                    dry_run=dry_run, trajectory=trajectory, plot=plot_path)

@@ -16,7 +16,11 @@ import click
 import numpy as np
 
 from ..errors import LogError, LogWarning
+from ..inputs import check_input, read_text
+from ..outputs import check_outputs, output_file
 from ..profile import load_profile
+from ..twin.extensions import extra_variance_mm2, mean_offsets
+from .options import profile_files
 
 
 #: largest |value| in a log: positions in mm (a 10 m machine is 1e4) and times in s (a week
@@ -27,8 +31,6 @@ MAX_LOG_ABS = 1e7
 def read_log_columns(path: pathlib.Path, ts_s: float):
     """t, x_cmd, y_cmd and (if present) x, y from a log; refuses malformed logs. A plan from
     ``optimize --trajectory`` (header ``t,x,y,z,e``) gives its x, y as the commands."""
-    from ..inputs import read_text
-
     lines = read_text(path, "a log (t,x_cmd,y_cmd[,x,y])", LogError).splitlines()
     header = lines[0].strip() if lines else ""
     cols = [c.strip() for c in header.split(",")]
@@ -86,12 +88,9 @@ def predict(log, machine, output, no_learn):
     (one sample behind) from the measured columns x, y when the log has them. LOG may also be
     a plan written by `optimize --trajectory` (t,x,y,z,e). A profile's extensions written by
     `diagnose -o` are part of the prediction (docs/diagnose.md)."""
+    # heavy stages imported on use: `gcode-feedopt --help` imports every command module
     from ..closedloop.logs import edge_speeds_mm_s, log_warmup
-    from ..inputs import check_input
-    from ..outputs import check_outputs, output_file
-    from ..twin.extensions import extra_variance_mm2, mean_offsets
     from ..twin.model import axis_twin
-    from .options import profile_files
 
     prof = load_profile(machine)
     check_input(log)

@@ -17,9 +17,13 @@ import time
 
 import click
 
+from ..inputs import check_input
+from ..outputs import check_outputs, write_text
+from ..profile import load_profile
 from ..simulation import CONTOUR_ON, simulate_file
 from ..vm import effects as fx
-from .options import SEED, TOLERANCE
+from ..vm.log import write_log
+from .options import SEED, TOLERANCE, profile_files
 
 #: largest |value| of an effect parameter (mm, Hz, s, scale): 1e308 ran and gave inf metrics
 MAX_EFFECT_ABS = 1e4
@@ -68,12 +72,6 @@ def simulate(gcode, machine, seed, effects, log_path, report_path, tol_mm, conto
     gcode-feedopt simulate part.gcode --machine ender3pro --log part.csv --report part.json
     gcode-feedopt simulate part.gcode -m ender3pro --seed 3 --effect backlash:axis=x,magnitude_mm=0.05
     """
-    from ..inputs import check_input
-    from ..outputs import check_outputs, write_text
-    from ..profile import load_profile
-    from ..vm.log import write_log
-    from .options import profile_files
-
     t_start = time.perf_counter()
     profile = load_profile(machine)
     check_input(gcode)

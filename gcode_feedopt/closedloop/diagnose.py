@@ -70,10 +70,14 @@ from typing import Callable
 import numpy as np
 from scipy import stats
 
-from ..twin.extensions import relax_sign
-from ..twin.model import noise_floor_mm
+from ..errors import LogError
+from ..twin.extensions import mean_offsets, relax_sign
+from ..twin.modal import ModalModel
+from ..twin.model import axis_twin, noise_floor_mm
+from ..twin.physics import axis_impulse, axis_modal
 from ..vm import effects as fx
 from ..vm.plant import respond
+from .extend import extend_profile
 
 AXES = ("x", "y")
 KINDS = ("periodic_time", "periodic_position", "backlash", "friction", "delay", "gain",
@@ -175,8 +179,6 @@ class Diagnosis:
 
 def nominal_impulse(profile) -> dict:
     """axis -> (mean (n,), factor (n, r)) of the twin's impulse response, unit DC gain."""
-    from ..twin.physics import axis_impulse
-
     out = {}
     for ax in AXES:
         ir = axis_impulse(profile, ax)
@@ -187,8 +189,6 @@ def nominal_impulse(profile) -> dict:
 
 def axis_physics(profile) -> dict:
     """axis -> AxisPhysics of a profile (the twin's physics, module docstring 1)."""
-    from ..twin.physics import axis_modal
-
     imp = nominal_impulse(profile)
     out = {}
     for ax in AXES:
@@ -225,8 +225,6 @@ def axis_physics(profile) -> dict:
 def _force_response(model, ts_s: float, n_taps: int):
     """(n,) unit-DC response of a modal model's modes to a force (module docstring of
     AxisPhysics), or None when the modes carry no static share."""
-    from ..twin.modal import ModalModel
-
     g = float(np.sum(model.b0))
     if not np.isfinite(g) or g <= 0.1:
         return None
@@ -777,9 +775,6 @@ def diagnose_log(log, profile, *, fit_fraction: float = FIT_FRACTION,
     with the profile ``extend_profile`` writes from this diagnosis: what ``diagnose -o`` writes
     is what was measured. ``after_fitted`` keeps the fitted phase of a periodic_time effect
     (this log only; the profile carries a fan as variance)."""
-    from ..errors import LogError
-    from .extend import extend_profile
-
     if not np.isclose(log.ts_s, profile.ts_s, rtol=1e-3):
         raise LogError(f"log Ts={log.ts_s:.6g} s differs from the profile {profile.name!r} "
                        f"Ts={profile.ts_s:g} s; wrong machine, or resample the log")
@@ -805,9 +800,6 @@ def diagnose_log(log, profile, *, fit_fraction: float = FIT_FRACTION,
 def twin_mean_mm(profile, cmd_mm: np.ndarray) -> np.ndarray:
     """(K, 2) the twin's open-loop mean prediction of X, Y (``predict --no-learn``), with the
     profile's extensions."""
-    from ..twin.extensions import mean_offsets
-    from ..twin.model import axis_twin
-
     cmd = np.asarray(cmd_mm, float)
     off = mean_offsets(profile, cmd)
     return np.column_stack([axis_twin(profile, ax).run(cmd[:, i], None, learn=False,

@@ -40,6 +40,12 @@ import numpy as np
 
 from ..errors import LogError
 from ..profile.schema import Prior
+from ..twin.extensions import extra_variance_mm2, mean_offsets
+from ..twin.features import factor_series
+from ..twin.frf import ImpulseResponse
+from ..twin.model import (NOISE_FLOOR_MIN_MM, axis_twin, learned_draw, learned_noise_mm,
+                          learned_speed_noise_s)
+from ..twin.physics import axis_impulse
 
 MAX_PRED_CHANGE_MM = 0.05
 FORGET = 0.05
@@ -66,8 +72,6 @@ def unexplained_level(twin, x_cmd, x_meas, warmup: int = 0) -> tuple[float, floa
     split by least squares (both terms ≥ 0) into a level that stays at rest — a fan, whatever
     its phase — and one that grows with the speed — an unmodelled lag, whose error is
     ≈ delay·v and vanishes at rest, so the optimizer can slow down for it."""
-    from ..twin.features import factor_series
-
     x_cmd = np.asarray(x_cmd, float)
     mean, _ = dataclasses.replace(twin).run(x_cmd, None, learn=False)
     w0 = int(warmup)
@@ -93,8 +97,6 @@ def unexplained_level(twin, x_cmd, x_meas, warmup: int = 0) -> tuple[float, floa
 def narrowed(ir, z, S):
     """The Gaussian impulse response ``ir`` given z ~ N(z, S Sᵀ) in its own directions:
     mean + L z, factor L S."""
-    from ..twin.frf import ImpulseResponse
-
     L = ir.factor @ S
     return ImpulseResponse(ts_s=ir.ts_s, mean=ir.mean + ir.factor @ z,
                            var=np.einsum("ij,ij->i", L, L), factor=L)
@@ -119,10 +121,6 @@ def learn_axis(profile, axis: str, x_cmd, x_meas, *, source: str = "", sha: str 
     """(Prior, record) for one axis from one log's commanded/measured positions; the first
     ``warmup`` samples (a log that starts mid-motion, ``closedloop.logs``) are neither learned
     from nor scored."""
-    from ..twin.model import (NOISE_FLOOR_MIN_MM, axis_twin, learned_draw, learned_noise_mm,
-                              learned_speed_noise_s)
-    from ..twin.physics import axis_impulse
-
     twin = axis_twin(profile, axis, method="pidd")
     mu0, cov0 = twin.mu.copy(), twin.cov.copy()
     sigma = profile.twin.sigma_eps_mm
@@ -172,7 +170,6 @@ def learn_axis(profile, axis: str, x_cmd, x_meas, *, source: str = "", sha: str 
     # the level of what the learned twin still cannot predict on this log, averaged (in
     # variance) with what earlier logs measured: one print cannot talk it away
     # (a fan the profile's extensions already carry as variance is not counted twice)
-    from ..twin.extensions import extra_variance_mm2
 
     level_log, kv_log = unexplained_level(learned, x_cmd, x_meas, warmup)
     level_log = math.sqrt(max(level_log ** 2 - extra_variance_mm2(profile.axes[axis].effects),
@@ -197,8 +194,6 @@ def learn_axis(profile, axis: str, x_cmd, x_meas, *, source: str = "", sha: str 
 
 def learn_logs(profile, logs):
     """Profile with priors updated from each MotionLog in turn; returns (profile, records)."""
-    from ..twin.extensions import mean_offsets
-
     records = []
     for log in logs:
         sha = _sha(log.source) if os.path.exists(str(log.source)) else ""

@@ -67,7 +67,14 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import signal
 
-from ..errors import LogError, LogWarning
+from ..errors import LogError, LogWarning, ProfileError
+from ..identify.excitation import GENERATORS, duration_s, sampled_accel
+from ..identify.raw import analyse_raw, check_clipping, resample_uniform
+from ..identify.readers import read_raw
+from ..twin.features import n_features
+from ..vm.log import read_log
+from ..vm.plant import respond
+from .diagnose import nominal_impulse
 
 #: Observer bandwidth, Hz (paper Sec. 6.1.1).
 OBSERVER_HZ = 15.0
@@ -130,8 +137,6 @@ def twin_memory(profile) -> int:
 
 def min_usable_samples(profile) -> int:
     """Fewer samples (after the warm-up) than the twin has weights identify nothing."""
-    from ..twin.features import n_features
-
     return int(n_features(profile.twin.n2, profile.twin.n3))
 
 
@@ -248,8 +253,6 @@ def _longest_run(mask: np.ndarray) -> int:
 
 
 def read_encoder(path) -> MotionLog:
-    from ..vm.log import read_log
-
     log = read_log(path)
     return MotionLog(ts_s=log.ts_s, cmd_mm=log.cmd_mm, pos_mm=log.pos_mm,
                      source=os.fspath(path), kind="encoder", info={"aligned": "shared clock"})
@@ -263,18 +266,9 @@ def read_klipper_raw(path, profile, *, n_modes: int = 3, axis: str = "x") -> Mot
     profile axis ``axis`` (the other at rest) and compared with that axis's twin. Command position = double integral of the commanded acceleration
     (piecewise constant, so exact), measured position = observer(model, measured accel).
     The model of the observer is the profile's X twin mean."""
-    from ..errors import ProfileError
-    from ..identify.raw import analyse_raw, check_clipping, resample_uniform
-    from ..identify.readers import read_raw
-    from ..identify.excitation import sampled_accel
-    from .diagnose import nominal_impulse
-    from ..vm.plant import respond
-
     name = os.fspath(path)
     try:
         t, acc = read_raw(name)
-        from ..identify.excitation import GENERATORS, duration_s
-
         need = min(duration_s(g) for g in GENERATORS.values())
         if len(t) < 2 or t[-1] - t[0] < 0.9 * need:
             span = float(t[-1] - t[0]) if len(t) > 1 else 0.0
@@ -347,9 +341,6 @@ def load_log(path, profile, *, check: bool = True, raw_axis: str = "x") -> Motio
         log = read_encoder(name)
         log = dataclasses.replace(log, warmup=log_warmup(log.cmd_mm, log.ts_s, profile))
     if check:
-        from .diagnose import nominal_impulse
-        from ..vm.plant import respond
-
         pred = None
         if log.kind == "encoder" and np.isclose(log.ts_s, profile.ts_s, rtol=1e-3):
             imp = nominal_impulse(profile)

@@ -19,6 +19,7 @@ from __future__ import annotations
 import pathlib
 
 from ..errors import VerifyError
+from ..outputs import write_bytes
 from .reader import Program, read_program, split_lines
 from .writer import T_ACCEL, T_IDENT, T_META, T_NEW, T_ORIG, WriteResult
 
@@ -107,6 +108,4 @@ def verify(program: Program, result: WriteResult, *, flavour: str, g91_relative_
 def atomic_write(target: pathlib.Path, data: bytes) -> None:
     """Write ``data`` to ``target`` through a temporary file and os.replace
     (gcode_feedopt.outputs.write_bytes: the one safe-write path)."""
-    from ..outputs import write_bytes
-
     write_bytes(target, data)

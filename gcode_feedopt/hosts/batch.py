@@ -11,6 +11,10 @@ from dataclasses import dataclass
 
 from ..errors import FeedOptError
 from ..gcode.reader import IDENT_PREFIX
+from ..outputs import make_output_folder
+from ..pipeline import Options, optimize_file
+from ..procs import acknowledge, worker_pool
+from ..profile import load_profile
 
 SUFFIXES = (".gcode", ".gco", ".g")
 
@@ -42,9 +46,6 @@ def already_processed(path: pathlib.Path) -> bool:
 
 def run_one(src: str, dst: str, machine: str, opts_dict: dict) -> JobResult:
     """One job, in a worker process. Never raises for a bad file: returns its status."""
-    from ..pipeline import Options, optimize_file
-    from ..profile import load_profile
-
     src_p, dst_p = pathlib.Path(src), pathlib.Path(dst)
     try:
         if already_processed(src_p) and not opts_dict.get("force"):
@@ -80,12 +81,8 @@ def run_batch(folder: pathlib.Path, outdir: pathlib.Path | None, machine: str, o
     Ctrl-C or SIGTERM stopped the batch, the signal number (else None): the workers are then
     stopped at once (a file being written keeps its old content, no temporary file is left),
     nothing queued starts, and each file not finished is marked ``interrupted``."""
-    from ..procs import acknowledge, worker_pool
-
     files = find_jobs(folder)
     if outdir is not None:
-        from ..outputs import make_output_folder
-
         make_output_folder(outdir, "-o")  # the output folder itself; its parent must exist
     results: dict[str, JobResult] = {}
     dsts = {f.name: (outdir or folder) / f.name for f in files}

@@ -13,6 +13,9 @@ import datetime
 import os
 import pathlib
 
+from ..errors import FeedOptError
+from ..outputs import write_bytes
+
 #: SLIC3R variables holding machine limits, and the profile value each one corresponds to.
 LIMIT_VARS = {
     "SLIC3R_MACHINE_MAX_ACCELERATION_X": ("firmware.max_accel_mm_s2.x", 1.0),
@@ -63,9 +66,6 @@ def limit_disagreements(profile, env=None) -> list[str]:
 
 def write_failure_log(gcode_path: pathlib.Path, message: str) -> pathlib.Path | None:
     """Write the failure next to the G-code (and say where), for hosts that drop stderr."""
-    from ..errors import FeedOptError
-    from ..outputs import write_bytes
-
     log = pathlib.Path(str(gcode_path) + ".feedopt.log")
     line = f"{datetime.datetime.now().isoformat(timespec='seconds')} {message}\n".encode()
     try:  # appended through the one safe-write path (outputs.py): never a device, no debris

@@ -14,6 +14,7 @@ import pathlib
 import numpy as np
 
 from ..errors import ProfileError
+from ..inputs import read_text
 
 
 def detect_kind(path) -> str:
@@ -46,8 +47,6 @@ def _table(path, what: str, names=True):
     every value finite and within ±MAX_ABS."""
     import io
     import warnings
-
-    from ..inputs import read_text
 
     text = read_text(path, what, ProfileError)
     try:
@@ -106,8 +105,6 @@ def read_uff58(path) -> list[tuple[np.ndarray, np.ndarray, str]]:
 
 def read_raw(path) -> tuple[np.ndarray, np.ndarray]:
     """Klipper raw accelerometer CSV -> (t_s (K,), accel_mm_s2 (K, 3))."""
-    from ..inputs import read_text
-
     text = read_text(path, "a Klipper raw recording (#time,accel_x,accel_y,accel_z)",
                      ProfileError)
     try:

@@ -27,12 +27,18 @@ import numpy as np
 from scipy.stats import norm
 
 from ..errors import FeedOptError
-from ..plan.kinematic import effective_limits, plan_kinematic
+from ..plan.kinematic import effective_limits, plan_kinematic, planner_limits, segment_plan
 from ..plan.schedule import Schedule
-from .free import FreePlan
+from ..twin.extensions import extra_variance_mm2
+from ..twin.model import axis_noise_mm, axis_prior, learned_speed_noise_s, twin_impulse
+from ..vm.metrics import evaluate
+from ..vm.plant import Plant
+from ..vm.trajectory import Trajectory
+from .free import ContourRules, FreePlan
 from . import parallel
-from .mpc import MpcPlanner, MpcResult, MpcSettings
+from .mpc import OVERSHOOT_LAG_S, MpcPlanner, MpcResult, MpcSettings
 from .predictors import PlantPredictor, TwinPredictor
+from .slowdown import PlantEvaluator, TwinEvaluator, plan_slowdown
 
 METHODS = ("kinematic", "conservative", "pb", "dd", "pidd", "oracle")
 #: how a twin-driven method finds its plan: ``slowdown`` (whole-file passes, the offline
@@ -47,8 +53,6 @@ CONSERVATIVE_MIN_SCALE = 0.02
 
 def vm_trajectory(path, s_mm: np.ndarray, ts_s: float):
     """Trajectory (pos (K,3), e (K,)) of a schedule on a path (as the writer's CSV)."""
-    from ..vm.trajectory import Trajectory
-
     s = np.asarray(s_mm, float)
     pos = path.position(s)
     k = path.segment_at(s)
@@ -61,8 +65,6 @@ def vm_trajectory(path, s_mm: np.ndarray, ts_s: float):
 
 def rms_violation_ratio(path, s_mm, plant, tol_mm, ts_s) -> tuple[float, object]:
     """RMS γ / E_max of a schedule executed by ``plant`` (and its Metrics)."""
-    from ..vm.metrics import evaluate
-
     tr = vm_trajectory(path, s_mm, ts_s)
     out = plant.simulate(tr)
     m = evaluate(tr, out.actual_mm, tol_mm)
@@ -126,9 +128,6 @@ def make_twin_predictor(profile, method: str, *, learn: bool):
     the part of it that grows with the commanded speed (twin.model.learned_speed_noise_s),
     which widen the chance constraint by what the twin cannot predict. (The extensions'
     deterministic terms, twin.extensions.mean_offsets, are not part of the predictor.)"""
-    from ..twin.extensions import extra_variance_mm2
-    from ..twin.model import axis_noise_mm, axis_prior, learned_speed_noise_s, twin_impulse
-
     tw = profile.twin
     irs = [twin_impulse(profile, ax, method=method) for ax in ("x", "y")]
     priors = [axis_prior(profile, ax, method=method) for ax in ("x", "y")]
@@ -195,11 +194,6 @@ def plan_offline(path, profile, method: str, *, tolerance_mm: float, stringency:
     down locally until the twin (or, for the oracle, the plant) keeps the chance bound on
     every sample (optimize.slowdown; the window LP of mpc.py is the full method it is tested
     against)."""
-    from ..plan.kinematic import planner_limits
-    from .free import ContourRules
-    from .mpc import OVERSHOOT_LAG_S
-    from .slowdown import PlantEvaluator, TwinEvaluator, plan_slowdown
-
     if method == "dd":
         raise FeedOptError("method dd learns from data only (zero prior) and has no data offline; "
                            "use --method pidd, or run dd online on the virtual machine with "
@@ -236,8 +230,6 @@ def _segment_plan(cells: dict, n_segments: int) -> dict:
     """Each segment's peak speed and acceleration in a slow-down plan (the writer's one line
     per unslowed segment: its cells share one acceleration and meet without a junction rule,
     so the segment is one trapezoid; slowed segments are written from the cells)."""
-    from ..plan.kinematic import segment_plan
-
     first = np.searchsorted(cells["parent"], np.arange(n_segments + 1))
     return segment_plan(np.maximum.reduceat(cells["vpeak_mm_s"], first[:-1]),
                         np.minimum.reduceat(cells["accel_mm_s2"], first[:-1]),
@@ -268,7 +260,6 @@ def plan_mpc(path, profile, predictor, *, method, tolerance_mm, stringency, vmax
             return
         # the plant is causal: run the whole committed history, read the new samples
         full = np.asarray(planner.cmd_hist, float)
-        from ..vm.trajectory import Trajectory
 
         tr = Trajectory(ts_s=ts, pos_mm=np.column_stack([full, np.zeros(len(full))]),
                         e_mm=np.zeros(len(full)))
@@ -397,8 +388,6 @@ def plan_schedule(method: str, path, profile, *, tolerance_mm: float, stringency
         return plan_kinematic(path, profile, vmax_mm_s=vmax_mm_s, amax_mm_s2=amax_mm_s2,
                               fw_limits=fw_limits, use_slicer_feed=use_slicer_feed)
     if plant is None and method in ("conservative", "oracle"):
-        from ..vm.plant import Plant
-
         plant = Plant(profile, seed=int(opts.get("seed", 0)), nominal=True)
     if method == "conservative":
         return plan_conservative(path, profile, tolerance_mm=tolerance_mm, stringency=stringency,

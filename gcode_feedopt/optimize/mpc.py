@@ -29,6 +29,7 @@ from typing import Protocol
 
 import numpy as np
 
+from ..errors import SolverError
 from . import window as win
 
 #: Elastic chance constraint: weight of 1 mm of violation relative to the progress objective
@@ -556,7 +557,5 @@ class MpcPlanner:
 
 
 def win_error(k, s):
-    from ..errors import SolverError
-
     return SolverError(f"sample {k} (s = {s:.3f} mm): no window plan found, not even with the "
                        "tolerance relaxed; raise --tolerance or check the machine profile")

@@ -21,7 +21,9 @@ import os
 
 import numpy as np
 
+from ..errors import UsageError
 from ..procs import worker_pool
+from .predictors import predict_trajectory
 
 #: history handed to a worker, samples (≥ the twin's n_taps + feature lags)
 HISTORY_PAD = 64
@@ -37,8 +39,6 @@ def default_workers() -> int:
     env = os.environ.get("GCODE_FEEDOPT_JOBS")
     if env:
         if not env.strip().isdigit() or not 1 <= int(env) <= 256:
-            from ..errors import UsageError
-
             raise UsageError(f"GCODE_FEEDOPT_JOBS={env[:20]!r} is not a whole number from 1 to "
                              "256; set it so or unset it")
         return int(env)
@@ -100,8 +100,6 @@ def run_parallel(ctx: dict, n_workers: int):
     samples = np.diff(np.concatenate([[0], idx]))
     chunks = chunk_pieces(samples, n_workers * CHUNKS_PER_WORKER)
     # the twin's internal series along F, kept only just before each chunk
-    from .predictors import predict_trajectory
-
     pred0 = ctx["predictor"]
     cmd = ctx["path"].position(fs)[:, :2]
     mean, std, series = predict_trajectory(pred0, cmd, series=True)

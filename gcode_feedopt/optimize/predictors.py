@@ -19,6 +19,10 @@ from __future__ import annotations
 import numpy as np
 from scipy.linalg import toeplitz
 
+from ..twin.blr import laplace_update
+from ..vm import effects as fx
+from ..vm.plant import simulate_axes
+
 
 def _fir_tail(h: np.ndarray, dev_hist: np.ndarray, dev_h: np.ndarray) -> np.ndarray:
     """(h * [dev_hist, dev_h]) at the horizon samples (n,), using only the last len(h)−1
@@ -389,8 +393,6 @@ class TwinPredictor:
     def observe(self, k0: int, meas: np.ndarray) -> None:
         """Measured XY (m, 2) of committed samples k0…k0+m−1: errors become measured and,
         with ``learn``, the weights learn from each sample (one sample behind, as online)."""
-        from ..twin.blr import laplace_update
-
         self._last = None
         meas = np.asarray(meas, float)
         n2, n3 = self.n2, self.n3
@@ -418,8 +420,6 @@ class PlantPredictor:
     Sensor noise is not part of the prediction (it is not motion)."""
 
     def __init__(self, plant):
-        from ..vm import effects as fx
-
         self.plant = plant
         self.effects = tuple(e for e in plant.effects if e.stage != "sensor")
         self.h = (plant.impulse["x"], plant.impulse["y"])
@@ -431,8 +431,6 @@ class PlantPredictor:
         self.cmd.extend(np.asarray(cmd, float))
 
     def predict(self, k0: int, cmd_h: np.ndarray, jac: bool = True):
-        from ..vm.plant import simulate_axes
-
         cmd_h = np.asarray(cmd_h, float)
         n = cmd_h.shape[0]
         full = np.vstack([np.asarray(self.cmd, float).reshape(-1, 2), cmd_h])

@@ -71,7 +71,12 @@ import numpy as np
 from ..plan.kinematic import PlannerLimits
 from ..procs import worker_pool
 from ..plan.trapezoid import forward_backward, peak_speed, trapezoids
+from ..vm.metrics import CONTOUR_WINDOW_S, distance_to_polyline_window
+from ..vm.plant import simulate_axes
+from . import parallel
 from .free import ranges
+from .mpc import _normals
+from .predictors import predict_trajectory
 
 
 @dataclass(frozen=True)
@@ -284,8 +289,6 @@ class TwinEvaluator:
         self.memory = max(h.size for h in tp.h) + tp.maxlag + 1
 
     def predict(self, cmd_xy: np.ndarray, ref_xy: np.ndarray):
-        from .predictors import predict_trajectory
-
         return predict_trajectory(self.tp, cmd_xy, ref=ref_xy)
 
     def geometry(self, path, s: np.ndarray, s_prev: np.ndarray,
@@ -294,8 +297,6 @@ class TwinEvaluator:
         commanded XY ``cmd`` (K, 2), unit normals ``nrm`` (K, 2), constrained samples ``on``
         (K,), and the overshoot pairs (``kk`` (m,), ``U``, ``V`` (m, 2)) of the samples near a
         sharp vertex. ``s_prev``, ``s_next``: (K,) the samples before and after each one."""
-        from .mpc import _normals
-
         s = np.asarray(s, float)
         on = self.rules.constrained_pairs(s, s_prev, s_next)
         kk, U, V = self.rules.overshoot_pairs(s, on, self.reach)
@@ -333,8 +334,6 @@ class TwinEvaluator:
             motion[kk[order]] = exc[order]
             unc[kk[order]] = zs[order]
         if path_xy is not None:
-            from ..vm.metrics import CONTOUR_WINDOW_S, distance_to_polyline_window
-
             dev = np.hypot(geo["cmd"][:, 0] - mean[0], geo["cmd"][:, 1] - mean[1])
             cand = np.flatnonzero(on & (dev + unc > self.tol * DISTANCE_CHECK))
             if cand.size:
@@ -375,8 +374,6 @@ class PlantEvaluator(TwinEvaluator):
         self.effects = tuple(e for e in plant.effects if e.stage != "sensor")
 
     def predict(self, cmd_xy, ref_xy):
-        from ..vm.plant import simulate_axes
-
         cmd3 = np.column_stack([cmd_xy, np.zeros(cmd_xy.shape[0])])
         out = simulate_axes(cmd3, self.plant.ts_s, self.plant.impulse, self.effects,
                             mode_hz=self.plant.mode_hz).actual_mm
@@ -390,8 +387,6 @@ class PlantEvaluator(TwinEvaluator):
         """(K,) what the plant's effects add at sample ``idx`` of a machine standing still,
         across the path (|n·d|), on constrained samples, mm: a time-periodic disturbance
         stays whatever the speed."""
-        from ..vm.plant import simulate_axes
-
         K = int(idx.max()) + 1 if idx.size else 0
         still = np.zeros((K, 3))
         d = simulate_axes(still, self.plant.ts_s, self.plant.impulse, self.effects,
@@ -870,8 +865,6 @@ def plan_slowdown(path, limits: PlannerLimits, evaluator, *, ts_s: float,
     """Slow the firmware's plan down locally until the evaluator's chance bound holds on
     every sample (module docstring). ``limits``: plan.kinematic.planner_limits of the path
     (F's limits); ``evaluator``: TwinEvaluator or PlantEvaluator."""
-    from . import parallel
-
     global _CTX
     st = settings or SlowdownSettings()
     t_start = time.perf_counter()

@@ -19,6 +19,7 @@ def build_from_frfs(base: MachineProfile, files: dict, *, name: str,
     modal model at once (``twin.physics``), so a set the model cannot explain is reported
     here, by file and frequency, not discovered later in a run; the mean fit's modes are
     stored as the axis's ``modes``."""
+    # on use: twin.modal's fitting stack (`gcode-feedopt --help` loads this module; +10 ms)
     from ..twin.physics import axis_modal
 
     axes = dict(base.axes)

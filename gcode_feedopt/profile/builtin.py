@@ -33,7 +33,8 @@ import sys
 
 import numpy as np
 
-from .schema import AxisModel, Firmware, FRFSet, Limits, MachineProfile, Mode, TwinSettings
+from .io import save_profile
+from .schema import AxisModel, Firmware, FRFSet, Limits, MachineProfile, Mode, Prior, TwinSettings
 
 #: Frequency grid of the modelled FRFs: 0 to the Nyquist frequency of Ts = 2 ms in 0.5 Hz
 #: steps, so the impulse response is N_h = 1/(Ts·Δf) = 1000 taps (2 s) long, far beyond the
@@ -178,9 +179,10 @@ PRIORS_NOTE = ("not learned (absent on purpose): the twin starts from its physic
 
 def with_learned_priors(prof: MachineProfile) -> MachineProfile:
     """The profile with (μ_β, Σ_β) per axis by the twin's Appendix-A MLE and a record of it."""
+    # the twin's physics on use: twin.modal's fitting stack is not needed to load a profile
+    # (`gcode-feedopt --help` loads this module; +10 ms at top)
     from ..twin.physics import axis_impulse, member_impulses
     from ..twin.prior import init_prior
-    from .schema import Prior
 
     T = prof.twin
     priors = {}
@@ -197,8 +199,6 @@ def with_learned_priors(prof: MachineProfile) -> MachineProfile:
 
 
 def write_builtins(outdir, learn_priors: bool = False) -> list[pathlib.Path]:
-    from .io import save_profile
-
     outdir = pathlib.Path(outdir)
     written = []
     for name, make in BUILTINS.items():

@@ -11,6 +11,8 @@ import pathlib
 import numpy as np
 
 from ..errors import ProfileError
+from ..inputs import read_text
+from ..outputs import output_file
 from .schema import FRFSet
 
 FRF_HEADER = "freq_hz,real,imag"
@@ -21,8 +23,6 @@ MAX_ABS = 1e6
 
 def read_frf_csv(path: pathlib.Path) -> tuple[np.ndarray, np.ndarray]:
     """Read one FRF file: header ``freq_hz,real,imag``. Returns (freq_hz (K,), H (K,) complex)."""
-    from ..inputs import read_text
-
     path = pathlib.Path(path)
     if not path.exists():
         raise ProfileError(f"{path}: FRF file not found; check the path in the profile "
@@ -55,8 +55,6 @@ def read_frf_csv(path: pathlib.Path) -> tuple[np.ndarray, np.ndarray]:
 
 def write_frf_csv(path: pathlib.Path, freq_hz: np.ndarray, response: np.ndarray) -> None:
     """Write one FRF file, 12 significant digits (a round trip is exact to 1e-12 relative)."""
-    from ..outputs import output_file  # temp + fsync + os.replace, no debris on any error
-
     rows = np.column_stack([freq_hz, response.real, response.imag])
     with output_file(path, text=True) as fh:
         fh.write(FRF_HEADER + "\n")

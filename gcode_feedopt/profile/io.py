@@ -15,7 +15,9 @@ import pathlib
 import numpy as np
 import yaml
 
-from ..errors import ProfileError
+from ..errors import OutputError, ProfileError
+from ..inputs import read_text
+from ..outputs import check_output, make_output_folder, write_text
 from .frf_io import FRF_HEADER, frf_set_from_files, read_frf_csv, write_frf_csv  # noqa: F401
 from ..twin.extensions import PARAMS as EXT_PARAMS, REQUIRED as EXT_REQUIRED
 from .schema import AXES, AxisModel, Firmware, FRFSet, Limits, MachineProfile, Mode, Prior, TwinSettings
@@ -290,7 +292,6 @@ def load_profile(name_or_path) -> MachineProfile:
     if not p.exists():  # a FIFO or folder: read_text says what it is
         raise ProfileError(f"{p}: profile file not found; check the path or use a built-in "
                            f"name ({', '.join(builtin_names())})")
-    from ..inputs import read_text
 
     text = read_text(p, "a profile YAML", ProfileError)
     try:
@@ -363,9 +364,6 @@ def check_profile_output(path, option: str = "-o", inputs=()):
     """Check that a profile can be written at ``path`` (outputs.check_output) and that its
     FRF folder (``path``'s stem, beside it) can be made and holds none of ``inputs``.
     Nothing is written; returns the outputs.Target of the YAML file."""
-    from ..errors import OutputError
-    from ..outputs import check_output
-
     inputs = [pathlib.Path(i) for i in inputs if i is not None]
     target = check_output(path, option, inputs=inputs, suffixes=(".yaml", ".yml"))
     folder = target.path.parent / target.path.stem
@@ -385,8 +383,6 @@ def save_profile(profile: MachineProfile, path, option: str = "-o") -> pathlib.P
     """Write ``path`` (YAML) and the FRF CSVs in a folder named after it, beside it; every
     file through gcode_feedopt.outputs (temp + replace). The folder ``path`` is in must
     exist; the FRF folder is made (one level)."""
-    from ..outputs import make_output_folder, write_text
-
     target = check_profile_output(path, option)
     path = target.path
     folder = path.parent / path.stem

@@ -133,6 +133,7 @@ def extra_variance_mm2(effects) -> float:
 def mean_offsets(profile, cmd_mm: np.ndarray) -> np.ndarray:
     """(K, 2) what the profile's extensions add to the twin's mean prediction of X, Y (zeros
     when it has none)."""
+    # on use: twin.modal's fitting stack (`gcode-feedopt --help` loads this module; +10 ms)
     from .physics import axis_impulse
 
     cmd = np.asarray(cmd_mm, float)
@@ -165,6 +166,7 @@ def mean_offsets(profile, cmd_mm: np.ndarray) -> np.ndarray:
 
 
 def _force_h(profile, axis):
+    # cycle: closedloop.diagnose imports this module (axis_physics belongs in twin/, issue 17)
     from ..closedloop.diagnose import axis_physics
 
     return axis_physics(profile)[axis].force

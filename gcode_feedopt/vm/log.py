@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import LogError
+from ..outputs import output_file
 from .trajectory import Trajectory
 
 REQUIRED_COLUMNS = ("t", "x_cmd", "y_cmd", "x", "y")
@@ -133,7 +134,6 @@ def write_log(path, t_s: np.ndarray, cmd_mm: np.ndarray, pos_mm: np.ndarray,
     if any(c.shape != (K,) for c in cols):
         raise ValueError("write_log: every column must have as many samples as t")
     data = np.column_stack(cols)
-    from ..outputs import output_file  # temp + fsync + os.replace, no debris on any error
 
     with output_file(path, "--log") as f:
         f.write((",".join(names) + "\n").encode())
