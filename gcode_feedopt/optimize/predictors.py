@@ -20,7 +20,6 @@ import numpy as np
 from scipy.linalg import toeplitz
 
 from ..twin.blr import laplace_update
-from ..vm import effects as fx
 from ..vm.plant import simulate_axes
 
 
@@ -425,7 +424,6 @@ class PlantPredictor:
         self.h = (plant.impulse["x"], plant.impulse["y"])
         self.cmd: list[np.ndarray] = []
         self._jac_cache = {}
-        del fx
 
     def commit(self, k0: int, cmd: np.ndarray) -> None:
         self.cmd.extend(np.asarray(cmd, float))
