@@ -18,7 +18,7 @@ SUFFIXES = (".gcode", ".gco", ".g")
 @dataclass
 class JobResult:
     file: str
-    status: str  # ok | skipped | failed | interrupted
+    status: str  # ok | kept (our plan was slower: the input kept) | skipped | failed | interrupted
     input_time_s: float | None = None
     output_time_s: float | None = None
     message: str = ""
@@ -53,6 +53,11 @@ def run_one(src: str, dst: str, machine: str, opts_dict: dict) -> JobResult:
                 and already_processed(dst_p) and not opts_dict.get("force"):
             return JobResult(src_p.name, "skipped", message="output up to date")
         rep = optimize_file(src_p, dst_p, load_profile(machine), Options(**opts_dict))
+        kept = rep.extra.get("kept_input")
+        if kept:
+            slower = 100.0 * (kept["plan_output_time_s"] / rep.input_time_s - 1.0)
+            return JobResult(src_p.name, "kept", rep.input_time_s, rep.output_time_s,
+                             message=f"our plan {slower:.1f} % slower; --allow-slower writes it")
         return JobResult(src_p.name, "ok", rep.input_time_s, rep.output_time_s)
     except FeedOptError as exc:
         return JobResult(src_p.name, "failed", message=str(exc))
