@@ -156,6 +156,25 @@ def execute_check(out_program, profile, tol_mm: float) -> dict:
             "rms_gamma_mm": round(m.rms_gamma_mm, 6)}
 
 
+def run_settings(profile, opts: Options) -> str:
+    """The settings a written file was made with, as its ident line records them: the
+    machine (and a digest of its profile file), method, speed policy, tolerance, stringency,
+    the limits given and the mode. ``batch`` compares them to re-process what changed."""
+    import hashlib
+
+    digest = "builtin"
+    if profile.source_path:
+        try:
+            digest = hashlib.sha256(pathlib.Path(profile.source_path).read_bytes()).hexdigest()[:8]
+        except OSError:
+            digest = "?"
+    g = (lambda v: "-" if v is None else f"{v:g}")
+    return (f"machine {profile.name}@{digest}, method {opts.method}, speed {opts.speed}, "
+            f"tolerance {g(opts.tolerance_mm or profile.limits.tolerance_mm)}, "
+            f"stringency {g(opts.stringency or profile.limits.stringency)}, "
+            f"vmax {g(opts.vmax_mm_s)}, amax {g(opts.amax_mm_s2)}, mode {opts.mode}")
+
+
 def check_run_outputs(in_path, out_path, opts: Options, extra: dict | None = None,
                       inputs=()) -> dict:
     """Check the input and every output of a run before anything is read or written
@@ -213,6 +232,7 @@ def optimize_file(in_path, out_path, profile, opts: Options) -> Report:
                        cells=cells, clamp=clamp,
                        feed_cap_mm_s=planning_path(path, opts.speed, profile,
                                                    opts.vmax_mm_s).feed_mm_s,
+                       run_settings=run_settings(profile, opts),
                        settings=None if cells is None and not firmware.raises_configured(profile)
                        else firmware.accel_settings(program, profile, clamp))
         wall["write"] = time.perf_counter() - t0

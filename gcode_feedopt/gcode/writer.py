@@ -815,7 +815,8 @@ def _time_at(s, ts, level):
 
 def write(program: Program, path: Path, schedule: Schedule, profile, *, mode: str = "refeed",
           accel_mm_s2: np.ndarray | None = None, fast: bool = True, cells: dict | None = None,
-          settings=None, clamp=None, feed_cap_mm_s: np.ndarray | None = None) -> WriteResult:
+          settings=None, clamp=None, feed_cap_mm_s: np.ndarray | None = None,
+          run_settings: str = "") -> WriteResult:
     """Write the re-timed G-code (see module docstring).
 
     ``cells`` (a slow-down plan's ``info["cells"]``: ``s0_mm`` (C+1,), ``scale`` (C,),
@@ -834,6 +835,9 @@ def write(program: Program, path: Path, schedule: Schedule, profile, *, mode: st
     ``accel_mm_s2``: (N,) the acceleration the firmware will use on each segment; where the
     plan follows the firmware's own trapezoid, one line with F = the plan's peak speed
     reproduces it, so no extra lines are written.
+
+    ``run_settings``: what the run was made with, recorded in brackets on the ident line
+    (pipeline.run_settings: ``batch`` re-processes an output whose settings differ).
 
     ``feed_cap_mm_s``: (N,) no line of segment k is written faster than this (the speed
     policy's ceiling, plan.speed.feed_ceiling; None: no cap).
@@ -898,6 +902,7 @@ def write(program: Program, path: Path, schedule: Schedule, profile, *, mode: st
     first_ending = _ending(program.lines[0]) or b"\n"
     ident = (IDENT_PREFIX + f" {__version__}".encode() +
              (f" (mode sampled, Ts = {ts * 1000:g} ms: one G1 per sample)".encode() if sampled else b"")
+             + (f" [{run_settings}]".encode() if run_settings else b"")
              + first_ending)
     orig_feed = 0.0  # modal F of the original file at this point, mm/s
     cur_feed = 0.0  # modal F the firmware has from our output, mm/s
