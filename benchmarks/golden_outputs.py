@@ -2,7 +2,7 @@
 
 For every real file in ../shared/data/gcode/ and the two sample files, the whole pipeline
 (:func:`gcode_feedopt.pipeline.optimize_file`, method kinematic) is run in refeed and in
-sampled mode and with ``--use-slicer-feed``; the sha256 of each output and of its report
+sampled mode, under ``--speed machine`` and ``--speed slicer``; the sha256 of each output and of its report
 (without the wall-clock fields and the output's temporary path) is recorded. Schedules that
 are *not* the firmware's own plan are written too, so the writer's general path is covered:
 
@@ -148,16 +148,18 @@ def main():
         machines = ("ender3pro", "nomad3") if small else ("ender3pro",)
         for machine in machines:
             t0 = time.perf_counter()
-            record(f"{stem}/{machine}/refeed", pipeline_case(src, machine, mode="refeed"))
+            record(f"{stem}/{machine}/refeed",
+                   pipeline_case(src, machine, mode="refeed", speed="machine"))
             record(f"{stem}/{machine}/refeed+slicer",
-                   pipeline_case(src, machine, mode="refeed", use_slicer_feed=True))
+                   pipeline_case(src, machine, mode="refeed", speed="slicer"))
             if small or a.sampled_big:
-                record(f"{stem}/{machine}/sampled", pipeline_case(src, machine, mode="sampled"))
+                record(f"{stem}/{machine}/sampled",
+                       pipeline_case(src, machine, mode="sampled", speed="machine"))
                 if small or "arcs" not in stem:
                     # the arc file sampled at the slicer's feeds: 20+ GB in the untouched
                     # code (millions of sub-arcs through the firmware model); left out
                     record(f"{stem}/{machine}/sampled+slicer",
-                           pipeline_case(src, machine, mode="sampled", use_slicer_feed=True))
+                           pipeline_case(src, machine, mode="sampled", speed="slicer"))
             modes = ("refeed", "sampled") if small or a.sampled_big else ("refeed",)
             for k, v in schedule_cases(src, machine, modes).items():
                 record(f"{stem}/{machine}/{k}", v)

@@ -17,6 +17,7 @@ from .gcode.reader import gc_paused, read_file
 from .gcode.verify import verify
 from .gcode.writer import write, write_trajectory_csv
 from .plan.kinematic import effective_limits, plan_kinematic, plan_trapezoids, writer_accel
+from .plan.speed import plan_vmax, planning_path
 from .inputs import check_input
 from .outputs import check_outputs, output_file, output_path, write_bytes
 from .plot import plot_run
@@ -26,6 +27,8 @@ from .vm.metrics import evaluate
 from .vm.plant import Plant
 
 METHODS = ("kinematic", "conservative", "pb", "dd", "pidd", "oracle")
+#: an output is "slower" when the firmware model runs it this much longer than the input
+SLOWER_TOLERANCE = 1e-3
 #: file types --plot can write (matplotlib's format from the suffix)
 PLOT_SUFFIXES = (".png", ".pdf", ".svg")
 
@@ -38,7 +41,10 @@ class Options:
     vmax_mm_s: float | None = None
     amax_mm_s2: float | None = None
     mode: str = "refeed"
-    use_slicer_feed: bool = False
+    #: plan.speed.SPEEDS: ``slicer`` (every move at most its sliced F) or ``machine``
+    speed: str = "slicer"
+    #: write the output even when it runs slower than the input
+    allow_slower: bool = False
     force: bool = False
     dry_run: bool = False
     trajectory: str | None = None
@@ -74,10 +80,13 @@ def path_for(program, profile, fw_limits=None):
 
 
 def plan(path, profile, opts: Options, fw_limits=None):
-    """The Schedule of the chosen method."""
+    """The Schedule of the chosen method, under the speed policy (plan.speed): the planners
+    see the path with each move's ceiling as its feed."""
+    path = planning_path(path, opts.speed, profile, opts.vmax_mm_s)
+    vmax = plan_vmax(profile, opts.speed, opts.vmax_mm_s)
     if opts.method == "kinematic":
-        return plan_kinematic(path, profile, use_slicer_feed=opts.use_slicer_feed,
-                              vmax_mm_s=opts.vmax_mm_s, amax_mm_s2=opts.amax_mm_s2,
+        return plan_kinematic(path, profile, use_slicer_feed=True,
+                              vmax_mm_s=vmax, amax_mm_s2=opts.amax_mm_s2,
                               fw_limits=fw_limits)
     try:
         from .optimize import plan_schedule
@@ -87,14 +96,16 @@ def plan(path, profile, opts: Options, fw_limits=None):
     return plan_schedule(opts.method, path, profile,
                          tolerance_mm=opts.tolerance_mm or profile.limits.tolerance_mm,
                          stringency=opts.stringency or profile.limits.stringency,
-                         vmax_mm_s=opts.vmax_mm_s, amax_mm_s2=opts.amax_mm_s2,
-                         fw_limits=fw_limits, use_slicer_feed=opts.use_slicer_feed)
+                         vmax_mm_s=vmax, amax_mm_s2=opts.amax_mm_s2,
+                         fw_limits=fw_limits, use_slicer_feed=True)
 
 
 def input_time_s(path, profile, opts: Options, fw_limits=None) -> float:
     """Time the original file takes under the same limits: the firmware plans it at the
-    slicer's feeds (capped by the profile's V_max)."""
-    vmax, axis_v, axis_a = effective_limits(profile, opts.vmax_mm_s, opts.amax_mm_s2)
+    slicer's feeds (capped by the plan's V_max, plan.speed.plan_vmax)."""
+    vmax, axis_v, axis_a = effective_limits(profile, plan_vmax(profile, opts.speed,
+                                                                opts.vmax_mm_s),
+                                            opts.amax_mm_s2)
     tr = plan_trapezoids(path, vmax_mm_s=vmax, axis_vmax_mm_s=axis_v, axis_amax_mm_s2=axis_a,
                          firmware=profile.firmware, use_slicer_feed=True, fw_limits=fw_limits)
     return tr.duration_s
@@ -145,6 +156,25 @@ def execute_check(out_program, profile, tol_mm: float) -> dict:
             "rms_gamma_mm": round(m.rms_gamma_mm, 6)}
 
 
+def run_settings(profile, opts: Options) -> str:
+    """The settings a written file was made with, as its ident line records them: the
+    machine (and a digest of its profile file), method, speed policy, tolerance, stringency,
+    the limits given and the mode. ``batch`` compares them to re-process what changed."""
+    import hashlib
+
+    digest = "builtin"
+    if profile.source_path:
+        try:
+            digest = hashlib.sha256(pathlib.Path(profile.source_path).read_bytes()).hexdigest()[:8]
+        except OSError:
+            digest = "?"
+    g = (lambda v: "-" if v is None else f"{v:g}")
+    return (f"machine {profile.name}@{digest}, method {opts.method}, speed {opts.speed}, "
+            f"tolerance {g(opts.tolerance_mm or profile.limits.tolerance_mm)}, "
+            f"stringency {g(opts.stringency or profile.limits.stringency)}, "
+            f"vmax {g(opts.vmax_mm_s)}, amax {g(opts.amax_mm_s2)}, mode {opts.mode}")
+
+
 def check_run_outputs(in_path, out_path, opts: Options, extra: dict | None = None,
                       inputs=()) -> dict:
     """Check the input and every output of a run before anything is read or written
@@ -184,7 +214,7 @@ def optimize_file(in_path, out_path, profile, opts: Options) -> Report:
         raise GCodeError(f"{in_path}: no move travels in X, Y or Z; nothing to re-time")
     wall["path"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    check_plan_size(path, profile, opts.vmax_mm_s, opts.amax_mm_s2, opts.use_slicer_feed,
+    check_plan_size(path, profile, opts.vmax_mm_s, opts.amax_mm_s2, opts.speed == "slicer",
                     fw_limits, where=str(in_path))
     sched = plan(path, profile, opts, fw_limits)
     t_in = input_time_s(path, profile, opts, fw_limits)
@@ -200,6 +230,9 @@ def optimize_file(in_path, out_path, profile, opts: Options) -> Report:
         result = write(program, path, sched, profile, mode=opts.mode,
                        accel_mm_s2=writer_accel(path, profile, fw_limits, opts.amax_mm_s2),
                        cells=cells, clamp=clamp,
+                       feed_cap_mm_s=planning_path(path, opts.speed, profile,
+                                                   opts.vmax_mm_s).feed_mm_s,
+                       run_settings=run_settings(profile, opts),
                        settings=None if cells is None and not firmware.raises_configured(profile)
                        else firmware.accel_settings(program, profile, clamp))
         wall["write"] = time.perf_counter() - t0
@@ -229,22 +262,31 @@ def optimize_file(in_path, out_path, profile, opts: Options) -> Report:
             plot_run(path, sched, tmp, title=f"{in_path.name}: {sched.method} on {profile.name}",
                      tolerance_mm=opts.tolerance_mm or profile.limits.tolerance_mm,
                      predicted_error_mm=sched.info.get("predicted_bound_mm"))
+    # an output that runs slower than the input is not written unless asked (--allow-slower):
+    # in place the file stays as it was, with -o the input goes there unchanged
+    keep = fw_out > fw_in * (1.0 + SLOWER_TOLERANCE) and not opts.allow_slower
     if not opts.dry_run:
         t0 = time.perf_counter()
-        if opts.trajectory:  # first: the G-code is the last file replaced
-            with output_file(targets["--trajectory"]) as fh:
-                write_trajectory_csv(fh, sched, path)
-        write_bytes(targets["-o"], result.data)
+        if keep:
+            if out_path.resolve() != in_path.resolve():
+                write_bytes(targets["-o"], in_path.read_bytes())
+        else:
+            if opts.trajectory:  # first: the G-code is the last file replaced
+                with output_file(targets["--trajectory"]) as fh:
+                    write_trajectory_csv(fh, sched, path)
+            write_bytes(targets["-o"], result.data)
         wall["save"] = time.perf_counter() - t0
     info = sched.info
     rep = Report(
         input=str(in_path), output=None if opts.dry_run else str(out_path),
-        machine=profile.name, method=sched.method, mode=opts.mode,
+        machine=profile.name, method=sched.method, mode=opts.mode, speed=opts.speed,
         tolerance_mm=opts.tolerance_mm or profile.limits.tolerance_mm,
         stringency=opts.stringency or profile.limits.stringency,
-        moves=len(program.moves), moves_changed=result.moves_changed,
-        lines_in=len(program.lines), lines_written=result.lines_written,
-        input_time_s=fw_in, output_time_s=fw_out, plan_time_s=sched.duration_s,
+        moves=len(program.moves), moves_changed=0 if keep else result.moves_changed,
+        lines_in=len(program.lines),
+        lines_written=len(program.lines) if keep else result.lines_written,
+        input_time_s=fw_in, output_time_s=fw_in if keep else fw_out,
+        plan_time_s=sched.duration_s,
         time_source=f"{fw.flavour} firmware model"
                     + (" as configured" if configured is not profile else ""),
         dry_run=opts.dry_run,
@@ -259,7 +301,7 @@ def optimize_file(in_path, out_path, profile, opts: Options) -> Report:
                                         "whole_file_checks", "samples_evaluated",
                                         "slowed_length_fraction", "compute_s", "solver_s")
                   if k in info}})
-    if result.plan_limit_lines:
+    if result.plan_limit_lines and not keep:
         fw_c = profile.firmware
         conf = ", ".join(f"{k} {v:g}" for k, v in (
             [("accel", fw_c.configured_accel_mm_s2)] if fw_c.configured_accel_mm_s2 else []) + (
@@ -274,7 +316,17 @@ def optimize_file(in_path, out_path, profile, opts: Options) -> Report:
         rep.notes.append(f"the last line ({len(program.lines)}) has no line end: if the file was "
                          "cut short (an interrupted upload or copy), the print is incomplete; "
                          "check its end")
-    if fw_out > fw_in:
+    if keep:
+        why = ("the twin slows it down where it predicts the tolerance would be broken"
+               if info.get("slowed_length_fraction") else
+               "the file's own speeds and accelerations leave nothing to gain")
+        rep.extra["kept_input"] = {"plan_output_time_s": fw_out, "why": why}
+        rep.notes.append(
+            f"kept the input as it was: our plan would run {fw_out:.1f} s, "
+            f"{100 * (fw_out / fw_in - 1):.1f} % slower than the file's {fw_in:.1f} s ({why}); "
+            "--allow-slower writes it" + ("" if opts.trajectory is None else
+                                          "; no trajectory written"))
+    elif fw_out > fw_in:
         rep.notes.append("the firmware runs the original faster than our output: the slicer's "
                          "feeds exceed the profile's limits somewhere (see --vmax)")
     return rep

@@ -26,6 +26,8 @@ class Report:
     output_time_s: float
     plan_time_s: float
     time_source: str
+    #: speed policy (plan.speed): ``slicer`` — no move above its sliced F — or ``machine``
+    speed: str = "slicer"
     dry_run: bool = False
     predicted_max_contour_error_mm: float | None = None
     predicted_p95_contour_error_mm: float | None = None
@@ -57,7 +59,9 @@ class Report:
 
         lines = [f"gcode-feedopt: {self.input}: {hms(self.input_time_s)} -> {hms(self.output_time_s)} "
                  f"({self.saved_pct:+.1f} % saved; {self.time_source})",
-                 f"  method {self.method}, machine {self.machine}, {self.moves_changed} of "
+                 f"  method {self.method}, machine {self.machine}, speed {self.speed}"
+                 f"{' (no move above its sliced F)' if self.speed == 'slicer' else ''}, "
+                 f"{self.moves_changed} of "
                  f"{self.moves} moves re-timed, {self.lines_written} lines written"
                  + (" (dry run: nothing written)" if self.dry_run else "")]
         if self.predicted_max_contour_error_mm is not None:

@@ -70,8 +70,10 @@ def test_in_place_then_second_run_refused_then_forced(src):
 
 def test_sampled_mode_states_ts_and_trajectory_csv_rows_per_ts(src, tmp_path):
     out, csv = tmp_path / "s.gcode", tmp_path / "t.csv"
+    # --allow-slower: one G1 per 2 ms at the butterfly's sliced speeds runs slower than the
+    # file (the firmware's line budget), which is the point here
     res = _run([src, "-o", out, "--machine", "ender3pro", "--mode", "sampled",
-                "--trajectory", csv, "-q"])
+                "--trajectory", csv, "-q", "--allow-slower"])
     assert res.exit_code == 0, res.output
     assert b"Ts = 2 ms" in out.read_bytes()
     text = csv.read_text().splitlines()
@@ -109,7 +111,37 @@ def test_vmax_override_slows_the_output(src, tmp_path):
     for extra in ([], ["--vmax", "20"]):
         rep = tmp_path / f"r{len(reps)}.json"
         res = _run([src, "-o", tmp_path / "o.gcode", "--machine", "ender3pro", "--report", rep,
-                    "-q", *extra])
+                    "-q", "--allow-slower", *extra])
         assert res.exit_code == 0, res.output
         reps.append(json.loads(rep.read_text()))
     assert reps[1]["output_time_s"] > reps[0]["output_time_s"] * 1.05
+
+
+def test_slower_output_is_not_written_unless_asked(tmp_path):
+    """issue 18: the PrusaSlicer part at its sliced speeds and its own accelerations: the
+    twin slows some stretches to keep the tolerance, so our output would run slower than the
+    file. By default the input stays as it was (in place) or goes to -o unchanged, the
+    summary says why; --allow-slower writes it; batch reports it as kept."""
+    src = REPO / "sample_gcode" / "part_prusaslicer.gcode"
+    before = src.read_bytes()
+    work = tmp_path / "part.gcode"
+    work.write_bytes(before)
+    r = CliRunner().invoke(cli, ["--machine", "ender3pro", str(work), "--report",
+                                 str(tmp_path / "r.json")])
+    assert r.exit_code == 0, r.output
+    assert work.read_bytes() == before
+    assert "kept the input as it was" in r.output and "--allow-slower" in r.output
+    rep = json.loads((tmp_path / "r.json").read_text())
+    assert rep["output_time_s"] == rep["input_time_s"] and rep["moves_changed"] == 0
+    assert rep["extra"]["kept_input"]["plan_output_time_s"] > rep["input_time_s"]
+    out = tmp_path / "o.gcode"
+    r = CliRunner().invoke(cli, [str(work), "-o", str(out), "-m", "ender3pro"])
+    assert r.exit_code == 0 and out.read_bytes() == before
+    r = CliRunner().invoke(cli, [str(work), "-o", str(out), "-m", "ender3pro", "--allow-slower"])
+    assert r.exit_code == 0 and b"; processed by gcode-feedopt" in out.read_bytes()[:4096]
+    jobs = tmp_path / "jobs"
+    jobs.mkdir()
+    (jobs / "part.gcode").write_bytes(before)
+    r = CliRunner().invoke(cli, ["batch", str(jobs), "-m", "ender3pro", "-j", "1"])
+    assert r.exit_code == 0, r.output
+    assert "kept" in r.output and (jobs / "part.gcode").read_bytes() == before

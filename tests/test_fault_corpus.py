@@ -350,9 +350,10 @@ add("predict log too short", Case(["predict", "log.csv", *P, "-o", "p.csv"],
 add("predict log non-uniform", Case(["predict", "log.csv", *P, "-o", "p.csv"],
                                     {"log.csv": log_rows(bad_row=b"0.0105,0,0,0,0\n")},
                                     "uniform"))
-add("predict log wrong Ts", Case(["predict", "log.csv", *P, "-o", "p.csv"],
+add("predict log other Ts", Case(["predict", "log.csv", *P, "-o", "p.csv"],
                                  {"log.csv": LOG_HEAD + b"".join(b"%.3f,0,0,0,0\n" % (k * 0.004)
-                                                                 for k in range(40))}, "period"))
+                                                                 for k in range(40))}, code=0,
+                                 creates=("p.csv",)))
 add("predict log fifo", Case(["predict", "log.csv", *P, "-o", "p.csv"], {"log.csv": FIFO}, "fifo"))
 add("predict log missing", Case(["predict", "nope.csv", *P, "-o", "p.csv"], {}, "no such file"))
 add("predict log is G-code", Case(["predict", "in.gcode", *P, "-o", "p.csv"], G, "column"))

@@ -117,7 +117,8 @@ def test_boundary_values_run(tmp_path, method, extra):
     src = tmp_path / "in.gcode"
     src.write_bytes(GOOD)
     res = CliRunner().invoke(cli, [str(src), "-o", str(tmp_path / "out.gcode"), "-m",
-                                   "ender3pro", "--method", method, "-q", *extra])
+                                   "ender3pro", "--method", method, "-q", "--allow-slower",
+                                   *extra])
     assert res.exit_code == 0, res.output
     assert b"processed by gcode-feedopt" in (tmp_path / "out.gcode").read_bytes()
     assert src.read_bytes() == GOOD

@@ -10,9 +10,10 @@ import click
 
 from ..hosts.batch import find_jobs, run_batch, table
 from ..pipeline import METHODS
+from ..plan.speed import SPEEDS
 from ..procs import signal_name
 from ..profile import load_profile
-from .options import AMAX, STRINGENCY, TOLERANCE, VMAX
+from .options import AMAX, STRINGENCY, TOLERANCE, VMAX, speed_policy
 
 
 @click.command("batch")
@@ -33,15 +34,21 @@ from .options import AMAX, STRINGENCY, TOLERANCE, VMAX
               help="Override the X/Y acceleration limit, mm/s².")
 @click.option("--mode", type=click.Choice(["refeed", "sampled"]), default="refeed",
               show_default=True, help="As for optimize.")
-@click.option("--use-slicer-feed", is_flag=True, help="Never faster than the slicer's F.")
+@click.option("--speed", type=click.Choice(SPEEDS), default=SPEEDS[0], show_default=True,
+              help="As for optimize (slicer: no move faster than its sliced F).")
+@click.option("--use-slicer-feed", is_flag=True, hidden=True,
+              help="Old name of --speed slicer (now the default).")
+@click.option("--allow-slower", is_flag=True,
+              help="As for optimize (by default a file our plan would slow down is kept).")
 @click.option("--force", is_flag=True, help="Process files that were processed before.")
 def batch(folder, outdir, jobs, machine, method, tolerance, stringency, vmax, amax, mode,
-          use_slicer_feed, force):
+          speed, use_slicer_feed, allow_slower, force):
     """Optimize every G-code file in FOLDER; print a summary table; exit 1 if any failed."""
     load_profile(machine)  # a bad machine fails once, here, not once per file
     opts = {"method": method, "tolerance_mm": tolerance, "stringency": stringency,
             "vmax_mm_s": vmax, "amax_mm_s2": amax, "mode": mode,
-            "use_slicer_feed": use_slicer_feed, "force": force}
+            "speed": speed_policy(speed, use_slicer_feed), "allow_slower": allow_slower,
+            "force": force}
     total = len(find_jobs(folder))
     done = [0]
     tty = sys.stderr.isatty()

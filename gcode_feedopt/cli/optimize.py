@@ -12,7 +12,8 @@ from ..hosts import prusaslicer
 from ..outputs import write_text
 from ..pipeline import METHODS, Options, check_run_outputs, optimize_file
 from ..profile import load_profile
-from .options import AMAX, STRINGENCY, TOLERANCE, VMAX, profile_files
+from ..plan.speed import SPEEDS
+from .options import AMAX, STRINGENCY, TOLERANCE, VMAX, profile_files, speed_policy
 
 
 @click.command("optimize")
@@ -36,8 +37,16 @@ from .options import AMAX, STRINGENCY, TOLERANCE, VMAX, profile_files
               help="Override the profile's X/Y acceleration limit, mm/s².")
 @click.option("--mode", type=click.Choice(["refeed", "sampled"]), default="refeed", show_default=True,
               help="refeed: the original moves with new F values; sampled: one G1 per Ts.")
-@click.option("--use-slicer-feed", is_flag=True,
-              help="Never go faster than the slicer's F (keeps its cooling slow-downs).")
+@click.option("--speed", type=click.Choice(SPEEDS), default=SPEEDS[0], show_default=True,
+              help="slicer: no move faster than its sliced F (first layer, walls, bridges, "
+                   "cooling slow-downs kept; the time comes from acceleration and cornering); "
+                   "machine: up to the machine's limits, first layer and the profile's "
+                   "volumetric limit kept.")
+@click.option("--use-slicer-feed", is_flag=True, hidden=True,
+              help="Old name of --speed slicer (now the default).")
+@click.option("--allow-slower", is_flag=True,
+              help="Write the output even when the firmware would run it slower than the "
+                   "input (by default the input is kept as it was, and the summary says why).")
 @click.option("--trajectory", type=click.Path(dir_okay=False), metavar="CSV",
               help="Also write the planned trajectory t,x,y,z,e (s, mm), one row per Ts.")
 @click.option("--report", "report_path", type=click.Path(dir_okay=False), metavar="JSON",
@@ -48,12 +57,14 @@ from .options import AMAX, STRINGENCY, TOLERANCE, VMAX, profile_files
 @click.option("--force", is_flag=True, help="Process a file that was processed before.")
 @click.option("--quiet", "-q", is_flag=True, help="No summary on stderr.")
 def optimize(gcode, output, machine, method, tolerance, stringency, vmax, amax, mode,
-             use_slicer_feed, trajectory, report_path, plot_path, dry_run, force, quiet):
+             speed, use_slicer_feed, allow_slower, trajectory, report_path, plot_path, dry_run,
+             force, quiet):
     """Re-time GCODE for MACHINE and write it (in place without -o)."""
     in_slicer = prusaslicer.running_in_slicer()
     try:
         _run(gcode, output, machine, method, tolerance, stringency, vmax, amax, mode,
-             use_slicer_feed, trajectory, report_path, plot_path, dry_run, force, quiet, in_slicer)
+             speed_policy(speed, use_slicer_feed), allow_slower, trajectory, report_path,
+             plot_path, dry_run, force, quiet, in_slicer)
     except FeedOptError as exc:
         if in_slicer:  # stderr is lost on Windows: leave the reason beside the G-code
             log = prusaslicer.write_failure_log(gcode, str(exc))
@@ -63,9 +74,10 @@ def optimize(gcode, output, machine, method, tolerance, stringency, vmax, amax, 
 
 
 def _run(gcode, output, machine, method, tolerance, stringency, vmax, amax, mode,
-         use_slicer_feed, trajectory, report_path, plot_path, dry_run, force, quiet, in_slicer):
+         speed, allow_slower, trajectory, report_path, plot_path, dry_run, force, quiet,
+         in_slicer):
     opts = Options(method=method, tolerance_mm=tolerance, stringency=stringency, vmax_mm_s=vmax,
-                   amax_mm_s2=amax, mode=mode, use_slicer_feed=use_slicer_feed, force=force,
+                   amax_mm_s2=amax, mode=mode, speed=speed, allow_slower=allow_slower, force=force,
                    dry_run=dry_run, trajectory=trajectory, plot=plot_path)
     profile = load_profile(machine)
     # every output checked before anything is read, planned or written

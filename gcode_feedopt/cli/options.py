@@ -85,3 +85,9 @@ def profile_files(machine: str) -> list[pathlib.Path]:
     replace)."""
     p = pathlib.Path(machine)
     return [p] if p.suffix.lower() in (".yaml", ".yml") and p.is_file() else []
+
+
+def speed_policy(speed: str, use_slicer_feed: bool) -> str:
+    """``--speed``, with the old ``--use-slicer-feed`` flag meaning ``slicer`` (kept so users'
+    scripts keep working; it is the default now)."""
+    return "slicer" if use_slicer_feed else speed

@@ -15,6 +15,7 @@ import warnings
 import click
 import numpy as np
 
+from ..closedloop.logs import resample_columns
 from ..errors import LogError, LogWarning
 from ..inputs import check_input, read_text
 from ..outputs import check_outputs, output_file
@@ -68,9 +69,12 @@ def read_log_columns(path: pathlib.Path, ts_s: float):
         row = int(np.argmax(np.abs(dt - ts) > 0.01 * ts)) + 3
         raise LogError(f"{path}:{row}: samples are not uniform (step {dt[row - 3]:.6g} s vs "
                        f"{ts:.6g} s); resample the log to a fixed period")
-    if abs(ts - ts_s) > 0.01 * ts_s:
-        raise LogError(f"{path}: sample period {ts * 1000:.4g} ms differs from the profile's Ts "
-                       f"{ts_s * 1000:g} ms; resample the log or use a profile with that Ts")
+    if abs(ts - ts_s) > 0.01 * ts_s:  # a 1 ms or 5 ms logger: onto the profile's grid
+        (data,), how = resample_columns(ts, ts_s, data)
+        t = data[0, cols.index("t")] + np.arange(data.shape[0]) * ts_s
+        data[:, cols.index("t")] = t
+        warnings.warn(f"{path}: sampled every {ts * 1000:.4g} ms, the profile's Ts is "
+                      f"{ts_s * 1000:g} ms: resampled to it ({how})", LogWarning, stacklevel=2)
     get = {c: data[:, i] for i, c in enumerate(cols)}
     if planned:
         return t, get["x"], get["y"], None, None

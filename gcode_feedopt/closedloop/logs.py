@@ -24,8 +24,7 @@ first sample is at rest there.
 
 Refused (genuinely unusable):
 
-- **wrong machine**: Ts differs from the profile's, or the twin's residual after the warm-up
-  is implausible (RMS above ``MAX_RESIDUAL_RATIO`` of the motion's own RMS, e.g. a log of
+- **wrong machine**: the twin's residual after the warm-up is implausible (RMS above ``MAX_RESIDUAL_RATIO`` of the motion's own RMS, e.g. a log of
   another printer whose dynamics the profile does not describe);
 - **too short**: fewer samples after the warm-up than the twin has weights
   (``n_features(n2, n3)``, 42 for n2 = 10, n3 = 30): nothing can be identified from fewer;
@@ -40,8 +39,10 @@ samples after the warm-up than the impulse response is long (``n_taps``): a moti
 the response it excites tells little apart; the learning step is bounded anyway
 (``closedloop.learn``).
 
-Encoder logs share one clock between command and measurement (one row each), so they need
-no alignment; shifting them would hide a real delay. A raw accelerometer file has its own
+An encoder log sampled at another period than the profile's Ts (a 1 ms or 5 ms logger) is
+resampled to Ts (``resample_columns``: every r-th sample for an integer ratio, else linear
+interpolation; one-line warning). Encoder logs share one clock between command and
+measurement (one row each), so they need no alignment; shifting them would hide a real delay. A raw accelerometer file has its own
 clock: the commanded motion (Klipper's resonance-test excitation, ``identify.excitation``) is
 aligned to it by cross-correlation, offset and clock rate (``identify.raw.analyse_raw`` →
 ``identify.h1.estimate_clock``).
@@ -252,6 +253,40 @@ def _longest_run(mask: np.ndarray) -> int:
     return int(np.max(ends - starts))
 
 
+def resample_columns(ts_from_s: float, ts_to_s: float, *cols: np.ndarray):
+    """Columns (K, ...) sampled every ``ts_from_s`` on the grid every ``ts_to_s`` over the same
+    span: every r-th sample when ``ts_to_s`` = r·``ts_from_s`` for an integer r (the samples
+    themselves: the sensor's noise stays white and the motion, far below either Nyquist
+    frequency, keeps its values), else linear interpolation between samples. Returns the
+    resampled columns and a few words saying how."""
+    ratio = ts_to_s / ts_from_s
+    r = int(round(ratio))
+    if r >= 1 and abs(ratio - r) <= 1e-6 * r:
+        return tuple(np.asarray(c)[::r] for c in cols), f"one sample in {r} kept"
+    k = np.asarray(cols[0]).shape[0]
+    t_from = np.arange(k) * ts_from_s
+    t_to = np.arange(int(np.floor(t_from[-1] / ts_to_s + 1e-9)) + 1) * ts_to_s
+    out = []
+    for c in cols:
+        c = np.asarray(c, float)
+        flat = c.reshape(k, -1)
+        res = np.column_stack([np.interp(t_to, t_from, flat[:, j]) for j in range(flat.shape[1])])
+        out.append(res.reshape((t_to.size,) + c.shape[1:]))
+    how = "linear interpolation" + (
+        f" (the log is coarser than Ts: the motion above {0.5 / ts_from_s:g} Hz, its Nyquist "
+        f"frequency, is not seen)" if ts_from_s > ts_to_s else "")
+    return tuple(out), how
+
+
+def resample_log(log: MotionLog, ts_s: float) -> tuple[MotionLog, str]:
+    """``log`` on the profile's grid ``ts_s`` (:func:`resample_columns`), with the sentence
+    the CLI prints as a warning."""
+    (cmd, pos), how = resample_columns(log.ts_s, ts_s, log.cmd_mm, log.pos_mm)
+    note = (f"{log.source}: sampled every {log.ts_s * 1000:.4g} ms, the profile's Ts is "
+            f"{ts_s * 1000:g} ms: resampled to it ({how})")
+    return dataclasses.replace(log, ts_s=ts_s, cmd_mm=cmd, pos_mm=pos), note
+
+
 def read_encoder(path) -> MotionLog:
     log = read_log(path)
     return MotionLog(ts_s=log.ts_s, cmd_mm=log.cmd_mm, pos_mm=log.pos_mm,
@@ -339,6 +374,9 @@ def load_log(path, profile, *, check: bool = True, raw_axis: str = "x") -> Motio
                        f"(t,x_cmd,y_cmd,x,y)")
     else:
         log = read_encoder(name)
+        if not np.isclose(log.ts_s, profile.ts_s, rtol=1e-3):
+            log, note = resample_log(log, profile.ts_s)
+            warnings.warn(note, LogWarning, stacklevel=2)
         log = dataclasses.replace(log, warmup=log_warmup(log.cmd_mm, log.ts_s, profile))
     if check:
         pred = None

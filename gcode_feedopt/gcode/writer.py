@@ -365,8 +365,15 @@ def _t_of(u_pts, t_pts, u):
 class _Emitter:
     """Formats the sub-moves of one original move."""
 
-    def __init__(self, program: Program):
+    def __init__(self, program: Program, cap_by_line: dict | None = None):
         self.program = program
+        #: line number -> the highest feed the move may be written at, mm/s (the speed
+        #: policy's ceiling, plan.speed): the sample-based piece speeds can overshoot the
+        #: plan's by a few % at a junction (segment times interpolated within a sample)
+        self.cap_by_line = cap_by_line or {}
+
+    def _feed(self, mv, v_mm_s: float) -> str:
+        return _fmt_feed(min(v_mm_s, self.cap_by_line.get(mv.line_no, math.inf)))
 
     def pieces_lines(self, mv, pieces, ending: bytes, comment: bytes) -> list[bytes]:
         words = mv.words
@@ -429,7 +436,7 @@ class _Emitter:
                         parts.append(f"E{_fmt(float(delta), nd_e)}")
                     else:
                         parts.append(f"E{_fmt(e - off[3], nd_e)}")
-            parts.append(f"F{_fmt_feed(v)}")
+            parts.append(f"F{self._feed(mv, v)}")
             line = " ".join(parts).encode("ascii")
             if j == 0 and comment:
                 line += b" " + comment
@@ -486,7 +493,7 @@ class _Emitter:
                         parts.append(f"E{_fmt(float(delta), nd_e)}")
                     else:
                         parts.append(f"E{_fmt(e - off[3], nd_e)}")
-            parts.append(f"F{_fmt_feed(v)}")
+            parts.append(f"F{self._feed(mv, v)}")
             line = " ".join(parts).encode("ascii")
             if j == 0 and comment:
                 line += b" " + comment
@@ -512,7 +519,7 @@ class _Emitter:
         if "E" in words:
             parts.append(f"E{_dec(Decimal(words['E']) - Decimal(0))}" if mv.e_relative
                          else f"E{words['E']}")
-        parts.append(f"F{_fmt_feed(v_mm_s)}")
+        parts.append(f"F{self._feed(mv, v_mm_s)}")
         line = " ".join(parts).encode("ascii")
         if comment:
             line += b" " + comment
@@ -808,7 +815,8 @@ def _time_at(s, ts, level):
 
 def write(program: Program, path: Path, schedule: Schedule, profile, *, mode: str = "refeed",
           accel_mm_s2: np.ndarray | None = None, fast: bool = True, cells: dict | None = None,
-          settings=None, clamp=None) -> WriteResult:
+          settings=None, clamp=None, feed_cap_mm_s: np.ndarray | None = None,
+          run_settings: str = "") -> WriteResult:
     """Write the re-timed G-code (see module docstring).
 
     ``cells`` (a slow-down plan's ``info["cells"]``: ``s0_mm`` (C+1,), ``scale`` (C,),
@@ -828,6 +836,12 @@ def write(program: Program, path: Path, schedule: Schedule, profile, *, mode: st
     plan follows the firmware's own trapezoid, one line with F = the plan's peak speed
     reproduces it, so no extra lines are written.
 
+    ``run_settings``: what the run was made with, recorded in brackets on the ident line
+    (pipeline.run_settings: ``batch`` re-processes an output whose settings differ).
+
+    ``feed_cap_mm_s``: (N,) no line of segment k is written faster than this (the speed
+    policy's ceiling, plan.speed.feed_ceiling; None: no cap).
+
     ``fast``: decide the moves that stay one line for all segments at once
     (:func:`single_piece_speeds`) and write them with :meth:`_Emitter.one_line`; every other
     move goes through :func:`_pieces` and :meth:`_Emitter.pieces_lines`. ``False`` sends every
@@ -839,8 +853,9 @@ def write(program: Program, path: Path, schedule: Schedule, profile, *, mode: st
     s = schedule.s_mm
     ts = schedule.ts_s
     seg_of_move = {int(m): k for k, m in enumerate(path.move_index)}
-    emitter = _Emitter(program)
     moves = program.moves
+    emitter = _Emitter(program, None if feed_cap_mm_s is None else {
+        moves[int(m)].line_no: float(c) for m, c in zip(path.move_index, feed_cap_mm_s)})
     move_at_line = {mv.line_no: i for i, mv in enumerate(moves)}
     total_s = schedule.duration_s
     meta = MetadataUpdater(program, total_s)
@@ -887,6 +902,7 @@ def write(program: Program, path: Path, schedule: Schedule, profile, *, mode: st
     first_ending = _ending(program.lines[0]) or b"\n"
     ident = (IDENT_PREFIX + f" {__version__}".encode() +
              (f" (mode sampled, Ts = {ts * 1000:g} ms: one G1 per sample)".encode() if sampled else b"")
+             + (f" [{run_settings}]".encode() if run_settings else b"")
              + first_ending)
     orig_feed = 0.0  # modal F of the original file at this point, mm/s
     cur_feed = 0.0  # modal F the firmware has from our output, mm/s

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from ..errors import FeedOptError
 from ..gcode.reader import IDENT_PREFIX
 from ..outputs import make_output_folder
-from ..pipeline import Options, optimize_file
+from ..pipeline import Options, optimize_file, run_settings
 from ..procs import acknowledge, worker_pool
 from ..profile import load_profile
 
@@ -22,7 +22,7 @@ SUFFIXES = (".gcode", ".gco", ".g")
 @dataclass
 class JobResult:
     file: str
-    status: str  # ok | skipped | failed | interrupted
+    status: str  # ok | kept (our plan was slower: the input kept) | skipped | failed | interrupted
     input_time_s: float | None = None
     output_time_s: float | None = None
     message: str = ""
@@ -44,16 +44,38 @@ def already_processed(path: pathlib.Path) -> bool:
     return IDENT_PREFIX in head
 
 
+def recorded_settings(path: pathlib.Path) -> str | None:
+    """The run settings on a processed file's ident line (pipeline.run_settings), or None."""
+    with open(path, "rb") as fh:
+        head = fh.read(4096)
+    i = head.find(IDENT_PREFIX)
+    if i < 0:
+        return None
+    line = head[i:head.find(b"\n", i) if b"\n" in head[i:] else len(head)]
+    a, b = line.find(b" ["), line.rfind(b"]")
+    return line[a + 2:b].decode("latin-1") if 0 <= a < b else None
+
+
 def run_one(src: str, dst: str, machine: str, opts_dict: dict) -> JobResult:
     """One job, in a worker process. Never raises for a bad file: returns its status."""
     src_p, dst_p = pathlib.Path(src), pathlib.Path(dst)
     try:
         if already_processed(src_p) and not opts_dict.get("force"):
             return JobResult(src_p.name, "skipped", message="already processed")
+        profile = load_profile(machine)
+        opts = Options(**opts_dict)
+        # an output made from this input with the same settings is up to date; another
+        # machine, method, tolerance, ... makes it again
         if dst_p != src_p and dst_p.exists() and dst_p.stat().st_mtime >= src_p.stat().st_mtime \
-                and already_processed(dst_p) and not opts_dict.get("force"):
+                and recorded_settings(dst_p) == run_settings(profile, opts) \
+                and not opts_dict.get("force"):
             return JobResult(src_p.name, "skipped", message="output up to date")
-        rep = optimize_file(src_p, dst_p, load_profile(machine), Options(**opts_dict))
+        rep = optimize_file(src_p, dst_p, profile, opts)
+        kept = rep.extra.get("kept_input")
+        if kept:
+            slower = 100.0 * (kept["plan_output_time_s"] / rep.input_time_s - 1.0)
+            return JobResult(src_p.name, "kept", rep.input_time_s, rep.output_time_s,
+                             message=f"our plan {slower:.1f} % slower; --allow-slower writes it")
         return JobResult(src_p.name, "ok", rep.input_time_s, rep.output_time_s)
     except FeedOptError as exc:
         return JobResult(src_p.name, "failed", message=str(exc))

@@ -97,7 +97,8 @@ def ender3pro() -> MachineProfile:
     limits = Limits(vmax_mm_s=70.0, amax_mm_s2=3000.0, jmax_mm_s3=None,
                     axis_vmax_mm_s={"x": 500.0, "y": 500.0, "z": 5.0, "e": 25.0},
                     axis_amax_mm_s2={"x": 3000.0, "y": 3000.0, "z": 100.0, "e": 5000.0},
-                    tolerance_mm=0.1, stringency=0.95)
+                    tolerance_mm=0.1, stringency=0.95, max_volumetric_mm3_s=12.0,
+                    filament_diameter_mm=1.75)
     firmware = Firmware(
         flavour="marlin", g91_relative_e=True, accel_mm_s2=3000.0, travel_accel_mm_s2=3000.0,
         max_accel_mm_s2={"x": 3000.0, "y": 3000.0, "z": 100.0, "e": 5000.0},
@@ -119,7 +120,10 @@ def ender3pro() -> MachineProfile:
         description="Creality Ender 3 Pro (Marlin 2), limits of Kim & Okwudire Sec. 6.1; FRFs modelled",
         ts_s=TS_S, limits=limits, firmware=firmware, axes=axes, twin=twin,
         provenance={
-            "limits": "Kim & Okwudire Sec. 6.1: V_max 70 mm/s, A_max 3 m/s^2, E_max 0.1 mm, eta 95 %",
+            "limits": "Kim & Okwudire Sec. 6.1: V_max 70 mm/s, A_max 3 m/s^2, E_max 0.1 mm, eta 95 %. "
+                      "max_volumetric_mm3_s 12: what the stock MK8-style hotend is commonly quoted to "
+                      "melt in PLA at 200-210 C (10-15 mm^3/s); set yours (it only acts under "
+                      "--speed machine)",
             "firmware": "Marlin 2 defaults of the Ender-3 Pro configuration for feed (X/Y 500, Z 5, "
                         "E 25 mm/s) and firmware retraction (3 mm at 45 mm/s); the stock firmware "
                         "limits X/Y acceleration to 500 mm/s^2 (configured_*): the plan is timed at "

@@ -207,6 +207,9 @@ def parse_profile(data, origin: str, base_dir: pathlib.Path | None) -> MachinePr
         axis_amax_mm_s2=_axis_dict(ls, "axis_amax_mm_s2", above=0, maxval=1e6),
         tolerance_mm=ls.getfloat("tolerance_mm", above=0, maxval=10),
         stringency=ls.getfloat("stringency", minval=0.5, maxval=0.9999),
+        max_volumetric_mm3_s=ls.getfloat("max_volumetric_mm3_s", None, above=0, maxval=1000,
+                                         allow_none=True),
+        filament_diameter_mm=ls.getfloat("filament_diameter_mm", 1.75, above=0.5, maxval=5),
     )
     ls.check_unknown()
     fs = top.section("firmware")
@@ -318,7 +321,7 @@ def profile_to_dict(profile: MachineProfile, frf_paths: dict | None = None) -> d
         "limits": {"vmax_mm_s": L.vmax_mm_s, "amax_mm_s2": L.amax_mm_s2,
                    "jmax_mm_s3": L.jmax_mm_s3, "axis_vmax_mm_s": dict(L.axis_vmax_mm_s),
                    "axis_amax_mm_s2": dict(L.axis_amax_mm_s2), "tolerance_mm": L.tolerance_mm,
-                   "stringency": L.stringency},
+                   "stringency": L.stringency, "filament_diameter_mm": L.filament_diameter_mm},
         "firmware": {"flavour": F.flavour, "g91_relative_e": F.g91_relative_e,
                      "accel_mm_s2": F.accel_mm_s2, "travel_accel_mm_s2": F.travel_accel_mm_s2,
                      "max_accel_mm_s2": dict(F.max_accel_mm_s2),
@@ -337,6 +340,8 @@ def profile_to_dict(profile: MachineProfile, frf_paths: dict | None = None) -> d
     }
     if F.flavour == "klipper":
         d["firmware"]["instantaneous_corner_velocity_mm_s"] = F.instantaneous_corner_velocity_mm_s
+    if L.max_volumetric_mm3_s is not None:
+        d["limits"]["max_volumetric_mm3_s"] = L.max_volumetric_mm3_s
     if F.configured_accel_mm_s2 is not None:
         d["firmware"]["configured_accel_mm_s2"] = F.configured_accel_mm_s2
     if F.configured_max_accel_mm_s2 is not None:

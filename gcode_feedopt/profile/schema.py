@@ -25,6 +25,9 @@ class Limits:
         axis_vmax_mm_s, axis_amax_mm_s2: per axis ``x``, ``y``, ``z``, ``e``.
         tolerance_mm: default contour-error tolerance E_max.
         stringency: default stringency η (0.5–0.9999).
+        max_volumetric_mm3_s: the hotend's melt limit, mm³/s (``--speed machine`` keeps
+            every extruding move within it; None: not stated).
+        filament_diameter_mm: for the volumetric limit.
     """
 
     vmax_mm_s: float
@@ -34,6 +37,8 @@ class Limits:
     axis_amax_mm_s2: dict
     tolerance_mm: float
     stringency: float
+    max_volumetric_mm3_s: float | None = None
+    filament_diameter_mm: float = 1.75
 
 
 @dataclass(frozen=True)

@@ -48,13 +48,66 @@ def test_good_log_reads(tmp_path):
     assert log.kind == "encoder" and log.cmd_mm.shape[1] == 3
 
 
-def test_wrong_machine_ts(tmp_path):
-    p = tmp_path / "ts.csv"
-    cmd, meas = make_log(tmp_path / "a.csv")
-    write(p, cmd, meas, ts=0.001)
-    with pytest.raises(LogError) as e:
-        load_log(p, PROFILE)
-    assert "wrong machine" in one_line(e)
+def test_other_sample_periods_are_resampled(tmp_path):
+    """A 1 ms logger (here: the 2 ms log with its midpoints) comes back to the 2 ms grid
+    sample for sample; a 4 ms one (every other sample) by linear interpolation. Both warn."""
+    from gcode_feedopt.errors import LogWarning
+
+    cmd, meas = make_log(tmp_path / "a.csv", effects=[fx.SensorNoise("x", std_mm=0.001)])
+    fine_c = np.empty((2 * len(cmd) - 1, cmd.shape[1]))
+    fine_m = np.empty_like(fine_c)
+    fine_c[0::2], fine_c[1::2] = cmd, 0.5 * (cmd[:-1] + cmd[1:])
+    fine_m[0::2], fine_m[1::2] = meas, 0.5 * (meas[:-1] + meas[1:])
+    p = tmp_path / "1ms.csv"
+    write(p, fine_c, fine_m, ts=0.001)
+    with pytest.warns(LogWarning, match="sampled every 1 ms.*one sample in 2 kept"):
+        log = load_log(p, PROFILE)
+    assert log.ts_s == TS
+    np.testing.assert_allclose(log.cmd_mm[:, :2], cmd[:, :2], atol=1e-6)
+    np.testing.assert_allclose(log.pos_mm[:, :2], meas[:, :2], atol=1e-6)
+    p = tmp_path / "4ms.csv"
+    write(p, cmd[::2], meas[::2], ts=0.004)
+    with pytest.warns(LogWarning, match="sampled every 4 ms.*linear interpolation"):
+        log = load_log(p, PROFILE)
+    assert log.ts_s == TS and abs(log.cmd_mm.shape[0] - len(cmd)) <= 1
+    np.testing.assert_allclose(log.cmd_mm[::2, :2], cmd[::2][:log.cmd_mm[::2].shape[0], :2],
+                               atol=1e-6)
+
+
+@pytest.mark.parametrize("name, truth", [("log_01.csv", None), ("log_04.csv", ("delay", "y")),
+                                         ("log_06.csv", ("periodic_position", "x"))])
+@pytest.mark.parametrize("step", [2, "mid"])
+def test_bench_a_logs_at_other_periods(tmp_path, name, truth, step):
+    """benchA's logs at 4 ms (every other sample) and 1 ms (midpoints inserted) against the
+    profile built from its FRFs (2 ms): the diagnosis names what the 2 ms log names."""
+    import warnings
+
+    from gcode_feedopt.closedloop.diagnose import diagnose_log
+    from gcode_feedopt.profile.build import build_from_frfs
+
+    from ..conftest import REPO
+
+    bench = REPO.parent / "shared" / "data" / "independent"
+    if not bench.is_dir():
+        pytest.skip("no benchA")
+    prof, _ = build_from_frfs(PROFILE, {a: sorted((bench / "frf").glob(f"{a}_*.csv"))
+                                        for a in "xy"}, name="benchA")
+    d = np.loadtxt(bench / "logs" / name, delimiter=",", skiprows=1)
+    if step == 2:
+        d = d[::2]
+    else:
+        fine = np.empty((2 * len(d) - 1, d.shape[1]))
+        fine[0::2], fine[1::2] = d, 0.5 * (d[:-1] + d[1:])
+        d = fine
+    p = tmp_path / name
+    np.savetxt(p, d, delimiter=",", header="t,x_cmd,y_cmd,x,y", comments="", fmt="%.7f")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        top = diagnose_log(load_log(p, prof), prof).effects[0]
+    if truth is None:
+        assert top["kind"] == "none", top
+    else:
+        assert (top["kind"], top["axis"]) == truth, top
 
 
 def test_wrong_machine_residual(tmp_path):

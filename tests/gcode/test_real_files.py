@@ -1,7 +1,9 @@
 """Round-trip invariants on every real slicer file in ../shared/data/gcode/ and on the bundled
 PrusaSlicer slice: verify passes (unchanged lines byte-identical and in order, extrusion per
-move within 1e-6 mm, end points exact), and the output time is no longer than the input time
-under the same limits."""
+move within 1e-6 mm, end points exact), the firmware model runs the output as planned, and
+where the twin slows nothing the plan is no longer than the input under the same limits. (A
+twin-driven plan at the slicer's speeds can be slower than the file: by default it is then not
+written, tests/test_cli_optimize.py; here ``allow_slower`` writes it to check it.)"""
 
 import pathlib
 
@@ -24,12 +26,15 @@ def test_round_trip_invariants(src: pathlib.Path, tmp_path):
     prof = load_profile("ender3pro")
     before = src.read_bytes()
     out = tmp_path / "out.gcode"
-    rep = optimize_file(src, out, prof, Options())
+    rep = optimize_file(src, out, prof, Options(allow_slower=True))
     assert src.read_bytes() == before  # input untouched
     data = out.read_bytes()
     assert data.count(IDENT_PREFIX) == 1 + before.count(IDENT_PREFIX)
     # under the same limits (the original at its slicer feeds, capped like the plan) ...
-    assert rep.plan_time_s <= rep.extra["input_time_same_limits_s"] * (1 + 1e-9)
+    # (within a sample per piece: the twin's plan samples every piece between exact stops
+    # from its own start)
+    if not rep.extra.get("slowed_length_fraction"):
+        assert rep.plan_time_s <= rep.extra["input_time_same_limits_s"] * (1 + 1e-3)
     # ... and the firmware model executes our output as planned (within 2 %)
     assert rep.output_time_s == pytest.approx(rep.plan_time_s, rel=0.02)
     assert rep.moves_changed > 0.9 * rep.moves - 2000
@@ -62,7 +67,9 @@ def test_fresh_prusaslicer_slice(tmp_path):
            "--center", "117.5,117.5", "-o", str(out), str(REPO / "sample_gcode" / "part.stl")]
     subprocess.run(cmd, check=True, capture_output=True, timeout=300)
     before = out.read_bytes()
-    rep = optimize_file(out, tmp_path / "opt.gcode", load_profile("ender3pro"), Options())
+    rep = optimize_file(out, tmp_path / "opt.gcode", load_profile("ender3pro"),
+                        Options(allow_slower=True))
     assert out.read_bytes() == before
-    assert rep.plan_time_s <= rep.extra["input_time_same_limits_s"]
+    if not rep.extra.get("slowed_length_fraction"):
+        assert rep.plan_time_s <= rep.extra["input_time_same_limits_s"]
     assert rep.moves_changed > 1000

@@ -66,3 +66,27 @@ def test_plot_and_dry_run(tmp_path):
     assert src.read_bytes() == before  # dry run writes nothing
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 20_000
     assert "dry run" in r.output
+
+
+def test_batch_makes_again_what_other_settings_made(tmp_path):
+    """issue 18: the ident line records the run's settings; an output made with others (here
+    the tolerance, then the method) is made again, one made with the same is up to date."""
+    src = tmp_path / "jobs"
+    src.mkdir()
+    shutil.copy(REPO / "sample_gcode" / "butterfly.gcode", src / "butterfly.gcode")
+    out = tmp_path / "out"
+
+    def run(*extra):
+        r = CliRunner().invoke(cli, ["batch", str(src), "-o", str(out), "-j", "1", "--machine",
+                                     "ender3pro", *extra])
+        assert r.exit_code == 0, r.output
+        return r.output.splitlines()[1]
+
+    assert run().rstrip().endswith("ok")
+    head = (out / "butterfly.gcode").read_bytes()[:4096]
+    assert b"[machine ender3pro@" in head and b"method pidd, speed slicer, tolerance 0.1," in head
+    assert "skipped" in run()
+    assert run("--tolerance", "0.2").rstrip().endswith("ok")
+    assert b"tolerance 0.2," in (out / "butterfly.gcode").read_bytes()[:4096]
+    assert "skipped" in run("--tolerance", "0.2")
+    assert run("--tolerance", "0.2", "--method", "kinematic").rstrip().endswith("ok")

@@ -43,14 +43,17 @@ def test_post_process_in_real_prusaslicer(tmp_path):
                        f'exec "{cli_path()}" "$@"\n')
     wrapper.chmod(0o755)
     out = tmp_path / "part.gcode"
-    r = slice_with(f"{wrapper} --machine ender3pro", out)
+    # --allow-slower: at this part's sliced speeds and PrusaSlicer's own accelerations the
+    # twin slows a few stretches, so by default the slicer's file would be kept as it is
+    # (tests/test_cli_optimize.py); here the written file is the subject
+    r = slice_with(f"{wrapper} --machine ender3pro --allow-slower", out)
     assert r.returncode == 0, r.stderr[-2000:]
     data = out.read_bytes()
     assert data.count(IDENT_PREFIX) == 1 and orig.read_bytes().count(IDENT_PREFIX) == 0
     # our pipeline is deterministic: the slicer's result is exactly what we make of its input,
     # and that run re-checks every invariant (verify) before writing
     again = tmp_path / "again.gcode"
-    optimize_file(orig, again, load_profile("ender3pro"), Options())
+    optimize_file(orig, again, load_profile("ender3pro"), Options(allow_slower=True))
     assert again.read_bytes() == data
     a, b = read_file(orig), read_file(out)
     assert len(b.moves) >= len(a.moves)

@@ -105,7 +105,11 @@ def test_kinematic_plan_runs_as_planned_on_klipper(tmp_path, name, lines):
         pytest.skip(f"{src} not found")
     inp = tmp_path / "in.gcode"
     inp.write_bytes(referee.prepare(src, lines))
-    rep = optimize_file(inp, tmp_path / "out.gcode", PROFILE, Options(method="kinematic"))
+    # the machine's speeds (at the slicer's the kinematic plan is the file's own; the first
+    # layer keeps its speeds under both: the butterfly and the Cura excerpt are all first layer)
+    rep = optimize_file(inp, tmp_path / "out.gcode", PROFILE,
+                        Options(method="kinematic", speed="machine"))
+    assert "kept_input" not in rep.extra
     assert rep.output_time_s == pytest.approx(rep.plan_time_s, rel=1e-5, abs=2e-3)
     assert rep.extra["input_time_same_limits_s"] == pytest.approx(rep.input_time_s, rel=1e-9)
-    assert rep.output_time_s < 0.9 * rep.input_time_s
+    assert rep.output_time_s <= rep.input_time_s * (1 + 1e-6)
