@@ -319,7 +319,8 @@ def optimize_file(in_path, out_path, profile, opts: Options) -> Report:
     if keep:
         why = ("the twin slows it down where it predicts the tolerance would be broken"
                if info.get("slowed_length_fraction") else
-               "the file's own speeds and accelerations leave nothing to gain")
+               "at the file's own speeds and accelerations our plan is no faster than the "
+               "firmware's own")
         rep.extra["kept_input"] = {"plan_output_time_s": fw_out, "why": why}
         rep.notes.append(
             f"kept the input as it was: our plan would run {fw_out:.1f} s, "
