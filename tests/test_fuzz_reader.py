@@ -99,7 +99,10 @@ def test_main_command_on_mutated_files(tmp_path, data):
     assert src.read_bytes() == data
     event(f"exit {res.exit_code}")
     if res.exit_code == 0:
-        assert b"processed by gcode-feedopt" in out.read_bytes()
+        # written, or (our plan slower than the file: the default keeps it) the input as it was
+        written = out.read_bytes()
+        assert b"processed by gcode-feedopt" in written or (
+            written == data and "kept the input as it was" in res.stderr)
     else:
         assert res.exit_code == 2, res.output
         line = res.stderr.strip()

@@ -95,5 +95,8 @@ def _run(gcode, output, machine, method, tolerance, stringency, vmax, amax, mode
         write_text(targets["--report"], rep.to_json() + "\n")
     if not quiet:
         click.echo(rep.summary(), err=True)
+    elif rep.extra.get("kept_input"):  # nothing was done: said even when quiet
+        click.echo(f"gcode-feedopt: {rep.input}: "
+                   + next(n for n in rep.notes if n.startswith("kept the input")), err=True)
     sys.stderr.flush()
 
