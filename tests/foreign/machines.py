@@ -460,9 +460,36 @@ def write_dataset(mach: Machine, out: pathlib.Path, *, effects: bool = True) -> 
                      "effects": labels or [{"kind": "none", "axis": None, "params": {}}]})
     labels = {"dataset": f"foreign-{mach.seed}", "machine": mach.describe(), "logs": logs,
               "frf_measurement": truth,
-              "plant": {a: {"dominant_hz": round(_axis_dominant(plant, a), 3)} for a in "xy"},
+              "plant": {**{a: {"dominant_hz": round(_axis_dominant(plant, a), 3)} for a in "xy"},
+                        "factors": fac},
               # present in every log, not in the per-axis FRFs: a diagnosis may name it
               "inherent": ([{"kind": "cross_coupling", "axis": a, "why": "corexy belt mismatch"}
                             for a in "xy"] if mach.kind == "corexy" else [])}
     (out / "labels.json").write_text(json.dumps(labels, indent=1))
     return labels
+
+
+@dataclass
+class _Out:
+    actual_mm: np.ndarray
+    measured_mm: np.ndarray
+
+
+class ForeignPlant:
+    """The logs' plant of a written data set as the optimizer's benchmarks run a plant
+    (``simulate(trajectory)`` → ``actual_mm``/``measured_mm`` (K, 3), ``run`` → actual): the
+    trajectory's X/Y samples through this module's physics, noise-free; Z passes through."""
+
+    def __init__(self, mach: Machine, labels: dict):
+        self.mach = mach
+        self.chans = apply_factors(mach, labels["plant"]["factors"])
+
+    def simulate(self, trajectory) -> _Out:
+        pos = np.asarray(trajectory.pos_mm, float)
+        quiet = Machine(**{**self.mach.__dict__, "sensor_q_mm": 1e-9, "sensor_noise_mm": 0.0})
+        x, y = respond_xy(quiet, self.chans, pos[:, 0], pos[:, 1], trajectory.ts_s)
+        act = np.column_stack([x, y, pos[:, 2]])
+        return _Out(act, act)
+
+    def run(self, trajectory) -> np.ndarray:
+        return self.simulate(trajectory).actual_mm
