@@ -134,9 +134,13 @@ class ModalModel:
 
     @property
     def dominant(self) -> int:
-        """Index of the mode with the largest resonant peak of its own term."""
+        """Index of the mode with the largest resonant peak of its own term. A pair of real
+        poles (ζ ≥ 1, a servo's integral action) has no resonance: it is the dominant mode only
+        if every mode is one (a resonance shift of it means nothing)."""
         w = 2 * np.pi * self.freq_hz
         peak = np.abs(self.b1_rad_s * 1j * w + self.b0 * w * w) / (2 * self.damping * w * w)
+        if np.any(self.damping < 1.0):
+            peak = np.where(self.damping < 1.0, peak, -np.inf)
         return int(np.argmax(peak))
 
     def state_space(self):
@@ -509,13 +513,6 @@ OUTLIER_FLOOR = 0.08
 OUTLIER_RATIO = 4.0
 #: The data's DC gain (fitted freely) this far from the pinned 1 is reported.
 DC_WARN = 0.01
-
-
-def _dominant(model: ModalModel) -> int:
-    """Index of the mode with the largest peak of its own term |N/D| at resonance."""
-    w = 2 * np.pi * model.freq_hz
-    peak = np.abs(model.b1_rad_s * 1j * w + model.b0 * w * w) / (2 * model.damping * w * w)
-    return int(np.argmax(peak))
 
 
 def fit_axis(freq_hz, response, labels=(), *, axis: str = "", dc_gain: float | None = 1.0,
