@@ -112,3 +112,24 @@ def test_effects_on_a_three_mode_machine_named_with_their_parameter(hotend1):
         if truth["kind"] == "gain":
             tv, gv = tv - 1, gv - 1
         assert abs(gv - tv) <= 0.05 * abs(tv), (e["file"], truth, g)
+
+
+def test_profile_build_and_diagnose_cli_on_a_servo(servo4, tmp_path):
+    """The user's path: `profile build` from the servo's files (its fits have real pole pairs,
+    ζ > 1, which the profile schema refused before), then `diagnose` and `predict` with it."""
+    import subprocess
+
+    out, _, _ = servo4
+    prof = tmp_path / "servo.yaml"
+    cmd = [sys.executable, "-m", "gcode_feedopt"]
+    r = subprocess.run(cmd + ["profile", "build", "--frf-x", *map(str, sorted((out / "frf").glob("x_*.csv"))),
+                              "--frf-y", *map(str, sorted((out / "frf").glob("y_*.csv"))), "-o", str(prof)],
+                       capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    r = subprocess.run(cmd + ["diagnose", "-m", str(prof), str(out / "logs" / "log_01.csv"),
+                              "--json", "-"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert all(e["kind"] == "none" for e in json.loads(r.stdout)["effects"]), r.stdout
+    r = subprocess.run(cmd + ["predict", "-m", str(prof), str(out / "logs" / "log_01.csv"),
+                              "-o", str(tmp_path / "p.csv")], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
