@@ -52,6 +52,8 @@ MAX_MODES = 4
 #: A further mode is kept only if it lowers the weighted residual by at least this fraction
 #: (a mode fitted to noise lowers it by ~2·4/K, K the number of bins: ~2 % at 477 bins).
 MODE_GAIN = 0.15
+#: Residual peaks tried as the start of a further mode before the order stops.
+PEAK_TRIES = 3
 #: A fit this close (relative RMS) is better than any measurement: no further mode is tried.
 EXACT_RMS = 2e-3
 #: Residuals are relative to max(|H|, RELATIVE_FLOOR · |H| at the lowest frequency): a
@@ -408,10 +410,14 @@ def _widen(f, h, wts, model: ModalModel, rms: float, fit_dc: bool, in_band: bool
     return (wide, wrms) if wrms < rms else (model, rms)
 
 
-def _peak_guess(freq_hz, mag) -> tuple[float, float]:
-    """(frequency, damping) of the most prominent peak of ``mag``."""
+def _peak_guess(freq_hz, mag, rank: int = 0) -> tuple[float, float] | None:
+    """(frequency, damping) of the ``rank``-th most prominent peak of ``mag`` (None if it
+    has fewer peaks)."""
     peaks, props = find_peaks(mag, prominence=0)
-    k = int(peaks[np.argmax(props["prominences"])]) if peaks.size else int(np.argmax(mag))
+    if rank and rank >= peaks.size:
+        return None
+    k = (int(peaks[np.argsort(props["prominences"])[::-1][rank]]) if peaks.size
+         else int(np.argmax(mag)))
     level = mag[k] / math.sqrt(2)
     lo, hi = k, k
     while lo > 0 and mag[lo] > level:
@@ -422,15 +428,19 @@ def _peak_guess(freq_hz, mag) -> tuple[float, float]:
     return float(freq_hz[k]), float(np.clip(zeta, 0.01, 0.3))
 
 
-def _add_mode(model: ModalModel | None, freq_hz, h, wts) -> ModalModel:
-    """``model`` with one more mode at the largest peak of what it leaves unexplained."""
+def _add_mode(model: ModalModel | None, freq_hz, h, wts, rank: int = 0) -> ModalModel | None:
+    """``model`` with one more mode at the largest (``rank``-th) peak of what it leaves
+    unexplained (None if there is no such peak)."""
     if model is None:
         # one base-excited mode carrying the whole DC gain: b1 = 2ζω·b0
         f0, z0 = _peak_guess(freq_hz, np.abs(h))
         return ModalModel(np.array([f0]), np.array([z0]), np.array([2 * z0 * 2 * np.pi * f0]),
                           np.array([1.0]), 3e-4, 1.0)
     r = np.abs(model.response(freq_hz) - h) * wts
-    f0, z0 = _peak_guess(freq_hz, r)
+    guess = _peak_guess(freq_hz, r, rank)
+    if guess is None:
+        return None
+    f0, z0 = guess
     shared = 0.02
     return ModalModel(np.append(model.freq_hz, f0), np.append(model.damping, z0),
                       np.append(model.b1_rad_s, 2 * z0 * 2 * np.pi * f0 * shared),
@@ -474,12 +484,26 @@ def fit_modal(freq_hz, response, *, n_modes: int | None = None, init: ModalModel
     else:
         model, rms = None, np.inf
         for m in range(1, (n_modes or MAX_MODES) + 1):
-            trial = _add_mode(model, f, h, wts)
-            if not fit_dc:
-                trial = ModalModel(trial.freq_hz, trial.damping, trial.b1_rad_s, trial.b0,
-                                   trial.lag_s, dc_gain)
-            # a probe for one more mode need not converge fully to show its worth
-            cand, crms = _solve(f, h, wts, trial, fit_dc, 300 if model is None else 60)
+            # The new mode starts at the largest peak of the residual. If that probe does not
+            # earn its place, the next peaks are tried before the order stops: two close modes
+            # (a corexy's belts 3 % apart, ζ 0.03) leave their largest residual between them,
+            # where a further mode gains 6 %, while the frame mode at 104 Hz it hid takes the
+            # misfit from 5.0 % to 0.75 % (tests/foreign, seed 0).
+            best = None
+            for rank in range(PEAK_TRIES if model is not None and n_modes is None else 1):
+                trial = _add_mode(model, f, h, wts, rank)
+                if trial is None:
+                    break
+                if not fit_dc:
+                    trial = ModalModel(trial.freq_hz, trial.damping, trial.b1_rad_s, trial.b0,
+                                       trial.lag_s, dc_gain)
+                # a probe for one more mode need not converge fully to show its worth
+                cand, crms = _solve(f, h, wts, trial, fit_dc, 300 if model is None else 60)
+                if best is None or crms < best[1]:
+                    best = (cand, crms)
+                if model is None or n_modes is not None or crms <= (1 - MODE_GAIN) * rms:
+                    break
+            cand, crms = best
             if n_modes is None and model is not None and crms > (1 - MODE_GAIN) * rms:
                 break
             model, rms = cand, crms
