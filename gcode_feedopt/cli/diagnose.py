@@ -19,7 +19,7 @@ from .options import Bounded, profile_files
 
 @click.command("diagnose")
 @click.argument("log_path", metavar="LOG", type=click.Path(exists=True, dir_okay=False))
-@click.option("--machine", "-m", required=True, help="Profile name (ender3pro, nomad3) or YAML path.")
+@click.option("--machine", "-m", required=True, help="Profile name (ender3pro, nomad3, voron24) or YAML path.")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False),
               help="Write the diagnosis as JSON here ('-' for stdout).")
 @click.option("--plot", "plot_path", type=click.Path(dir_okay=False),

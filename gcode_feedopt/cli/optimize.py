@@ -21,7 +21,7 @@ from .options import AMAX, STRINGENCY, TOLERANCE, VMAX, profile_files, speed_pol
 @click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=pathlib.Path),
               help="Write here; without it the input is edited in place (PrusaSlicer's contract).")
 @click.option("--machine", "-m", required=True,
-              help="Built-in profile (ender3pro, nomad3) or a profile .yaml path.")
+              help="Built-in profile (ender3pro, nomad3, voron24) or a profile .yaml path.")
 @click.option("--method", type=click.Choice(METHODS), default="pidd", show_default=True,
               help="pidd: the digital twin keeps the contour error within the tolerance; "
                    "kinematic: the firmware's limits only (fastest, no error model); "

@@ -31,7 +31,7 @@ class GcodeFeedopt(Script):
             "metadata": {},
             "version": 2,
             "settings": {
-                "machine": {"label": "Machine profile", "description": "Built-in profile name (ender3pro, nomad3) or the path of a profile .yaml", "type": "str", "default_value": "ender3pro"},
+                "machine": {"label": "Machine profile", "description": "Built-in profile name (ender3pro, nomad3, voron24) or the path of a profile .yaml", "type": "str", "default_value": "ender3pro"},
                 "tolerance": {"label": "Tolerance", "description": "Contour-error tolerance E_max", "unit": "mm", "type": "float", "default_value": 0.1, "minimum_value": "0.001"},
                 "stringency": {"label": "Stringency", "description": "Fraction of samples that must stay within the tolerance", "type": "float", "default_value": 0.95, "minimum_value": "0.5", "maximum_value": "0.9999"},
                 "method": {"label": "Method", "description": "Planner", "type": "enum", "options": {"pidd": "Digital twin (PIDD)", "kinematic": "Kinematic limits", "pb": "Physics only", "conservative": "Conservative"}, "default_value": "pidd"},
