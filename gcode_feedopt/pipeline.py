@@ -5,6 +5,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import pathlib
 import time
 from dataclasses import dataclass
@@ -12,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import AlreadyProcessedError, FeedOptError, GCodeError, UsageError
+from .gcode.metadata import rescale_times
 from .gcode.path import build_path
 from .gcode.reader import gc_paused, read_file
 from .gcode.verify import verify
@@ -265,6 +267,9 @@ def optimize_file(in_path, out_path, profile, opts: Options) -> Report:
     # an output that runs slower than the input is not written unless asked (--allow-slower):
     # in place the file stays as it was, with -o the input goes there unchanged
     keep = fw_out > fw_in * (1.0 + SLOWER_TOLERANCE) and not opts.allow_slower
+    # the time lines the slicer wrote (;TIME:, M73, estimated printing time) carry the time the
+    # summary reports: the firmware model's of this very file, not the plan's
+    result = dataclasses.replace(result, data=rescale_times(result.data, sched.duration_s, fw_out))
     if not opts.dry_run:
         t0 = time.perf_counter()
         if keep:
