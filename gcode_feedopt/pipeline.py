@@ -317,6 +317,14 @@ def optimize_file(in_path, out_path, profile, opts: Options) -> Report:
                          f"{conf} mm/s²) and the configured values again after its last; the "
                          f"input alone would take {fw_in_raised:.1f} s at those limits, "
                          f"{fw_in:.1f} s as configured")
+    rate = 1.0 / profile.ts_s
+    if opts.mode == "sampled" and rate > profile.firmware.max_lines_per_s and not keep:
+        rep.notes.append(
+            f"--mode sampled writes one motion line per {1000 * profile.ts_s:g} ms, {rate:.0f} "
+            f"lines/s while moving, above {profile.name}'s max_lines_per_s "
+            f"{profile.firmware.max_lines_per_s:g} (what its serial link and planner buffer "
+            "carry): the printer may pause between lines and blob; use --mode refeed (the "
+            "default), or raise firmware.max_lines_per_s if your host streams faster")
     if program.lines and not program.lines[-1].endswith(b"\n"):
         rep.notes.append(f"the last line ({len(program.lines)}) has no line end: if the file was "
                          "cut short (an interrupted upload or copy), the print is incomplete; "

@@ -82,6 +82,18 @@ def test_sampled_mode_states_ts_and_trajectory_csv_rows_per_ts(src, tmp_path):
     assert np.allclose(np.diff(t), 0.002, atol=1e-6)
 
 
+@pytest.mark.parametrize("machine,warned", [("ender3pro", True), ("voron24", False)])
+def test_sampled_mode_above_the_line_budget_says_so(src, tmp_path, machine, warned):
+    """500 lines/s against ender3pro's serial budget of 300 is stated; voron24 (Klipper's
+    host queue, 2000) is within."""
+    rep = tmp_path / "r.json"
+    res = _run([src, "-o", tmp_path / "s.gcode", "--machine", machine, "--mode", "sampled",
+                "--method", "kinematic", "--allow-slower", "--report", rep])
+    assert res.exit_code == 0, res.output
+    notes = " ".join(json.loads(rep.read_text())["notes"])
+    assert ("max_lines_per_s" in notes) == warned, notes
+
+
 @pytest.mark.parametrize("method", ["conservative", "pb", "pidd", "oracle"])
 def test_twin_methods_write_verified_output(src, tmp_path, method):
     before = src.read_bytes()
