@@ -195,13 +195,17 @@ def check_run_outputs(in_path, out_path, opts: Options, extra: dict | None = Non
     return targets
 
 
-def optimize_file(in_path, out_path, profile, opts: Options) -> Report:
-    """Optimize ``in_path`` and write ``out_path`` (may be the same file: in place)."""
+def optimize_file(in_path, out_path, profile, opts: Options, progress=None) -> Report:
+    """Optimize ``in_path`` and write ``out_path`` (may be the same file: in place).
+    ``progress``: called with the name of each stage as it starts (the CLI shows it on a
+    terminal; results do not depend on it)."""
+    say = progress or (lambda stage: None)
     in_path = pathlib.Path(in_path)
     out_path = pathlib.Path(out_path) if out_path is not None else in_path
     targets = check_run_outputs(in_path, out_path, opts)
     wall = {}
     t0 = time.perf_counter()
+    say("reading")
     program = read_for(in_path, profile)
     wall["parse"] = time.perf_counter() - t0
     if program.processed_line is not None and not opts.force:
@@ -218,6 +222,7 @@ def optimize_file(in_path, out_path, profile, opts: Options) -> Report:
     t0 = time.perf_counter()
     check_plan_size(path, profile, opts.vmax_mm_s, opts.amax_mm_s2, opts.speed == "slicer",
                     fw_limits, where=str(in_path))
+    say(f"planning {path.n_segments:,} moves ({opts.method})")
     sched = plan(path, profile, opts, fw_limits)
     t_in = input_time_s(path, profile, opts, fw_limits)
     wall["plan"] = time.perf_counter() - t0
@@ -226,6 +231,7 @@ def optimize_file(in_path, out_path, profile, opts: Options) -> Report:
     # objects (gc_paused)
     with gc_paused():
         t0 = time.perf_counter()
+        say("writing")
         cells = sched.info.get("cells")
         axis_a = effective_limits(profile, opts.vmax_mm_s, opts.amax_mm_s2)[2]
         clamp = firmware.accel_clamp(program, profile, axis_a)
@@ -248,6 +254,7 @@ def optimize_file(in_path, out_path, profile, opts: Options) -> Report:
         # limits itself, gcode.writer._PlanLimits); the input also at the profile's values,
         # to tell the saving from raised limits apart from the plan's
         configured = firmware.as_configured(profile)
+        say("timing both files on the firmware model")
         fw_in = firmware.estimate_time_s(program, configured)
         fw_out = firmware.estimate_time_s(out_program, configured)
         fw_in_raised = (fw_in if configured is profile
@@ -256,6 +263,7 @@ def optimize_file(in_path, out_path, profile, opts: Options) -> Report:
     executed = None
     if sched.method != "kinematic":
         t0 = time.perf_counter()
+        say("executing the output on the firmware model and plant")
         executed = execute_check(out_program, configured,
                                  opts.tolerance_mm or profile.limits.tolerance_mm)
         wall["execute"] = time.perf_counter() - t0

@@ -157,3 +157,41 @@ def test_slower_output_is_not_written_unless_asked(tmp_path):
     r = CliRunner().invoke(cli, ["batch", str(jobs), "-m", "ender3pro", "-j", "1"])
     assert r.exit_code == 0, r.output
     assert "kept" in r.output and (jobs / "part.gcode").read_bytes() == before
+
+
+def test_progress_on_a_terminal_only_and_output_unchanged(tmp_path):
+    """Issue 18: a long run is not silent on a terminal; a pipe (print hosts, logs) gets the
+    summary only; the G-code is the same either way."""
+    import os
+    import pty
+    import subprocess
+    import sys
+
+    def run(out, tty):
+        cmd = [sys.executable, "-m", "gcode_feedopt", str(SAMPLE), "-o", str(out),
+               "--machine", "ender3pro", "--method", "kinematic"]
+        if not tty:
+            r = subprocess.run(cmd, capture_output=True)
+            assert r.returncode == 0, r.stderr
+            return r.stderr
+        master, slave = pty.openpty()
+        p = subprocess.Popen(cmd, stderr=slave, stdout=subprocess.DEVNULL)
+        os.close(slave)
+        buf = b""
+        while True:
+            try:
+                chunk = os.read(master, 4096)
+            except OSError:
+                break
+            if not chunk:
+                break
+            buf += chunk
+        assert p.wait() == 0, buf
+        os.close(master)
+        return buf
+
+    a, b = tmp_path / "tty.gcode", tmp_path / "pipe.gcode"
+    on_tty, on_pipe = run(a, True), run(b, False)
+    assert b"planning" in on_tty and b"reading" in on_tty
+    assert b"planning" not in on_pipe and b"\r" not in on_pipe
+    assert a.read_bytes() == b.read_bytes()

@@ -13,7 +13,7 @@ from ..outputs import write_text
 from ..pipeline import METHODS, Options, check_run_outputs, optimize_file
 from ..profile import load_profile
 from ..plan.speed import SPEEDS
-from .options import AMAX, STRINGENCY, TOLERANCE, VMAX, profile_files, speed_policy
+from .options import AMAX, STRINGENCY, TOLERANCE, VMAX, Progress, profile_files, speed_policy
 
 
 @click.command("optimize")
@@ -83,7 +83,12 @@ def _run(gcode, output, machine, method, tolerance, stringency, vmax, amax, mode
     # every output checked before anything is read, planned or written
     targets = check_run_outputs(gcode, output, opts, {"--report": report_path},
                                 inputs=profile_files(machine))
-    rep = optimize_file(gcode, output, profile, opts)
+    progress = Progress(pathlib.Path(gcode).name) if not quiet and sys.stderr.isatty() else None
+    try:
+        rep = optimize_file(gcode, output, profile, opts, progress=progress)
+    finally:
+        if progress is not None:
+            progress.done()
     if in_slicer:
         rep.notes.extend(prusaslicer.limit_disagreements(profile))
         name = prusaslicer.output_name()
