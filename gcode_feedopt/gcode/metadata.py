@@ -95,6 +95,9 @@ def rescale_times(data: bytes, plan_total_s: float, total_s: float) -> bytes:
     up = MetadataUpdater(None, total_s)
     out = []
     for raw in data.splitlines(keepends=True):
+        if raw[:1] not in (b";", b"M", b"m"):  # motion and most lines: nothing to look at
+            out.append(raw)
+            continue
         body, _ = _split_ending(raw)
         t_here = None
         m = _ELAPSED.match(body)

@@ -416,8 +416,12 @@ def _peak_guess(freq_hz, mag, rank: int = 0) -> tuple[float, float] | None:
     peaks, props = find_peaks(mag, prominence=0)
     if rank and rank >= peaks.size:
         return None
-    k = (int(peaks[np.argsort(props["prominences"])[::-1][rank]]) if peaks.size
-         else int(np.argmax(mag)))
+    if not peaks.size:
+        k = int(np.argmax(mag))
+    elif rank == 0:  # the most prominent (the first of equals, as always)
+        k = int(peaks[np.argmax(props["prominences"])])
+    else:
+        k = int(peaks[np.argsort(-props["prominences"], kind="stable")[rank]])
     level = mag[k] / math.sqrt(2)
     lo, hi = k, k
     while lo > 0 and mag[lo] > level:
