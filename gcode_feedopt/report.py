@@ -77,6 +77,13 @@ class Report:
                          f"{self.plan_time_s:.2f} s; contour error worst {ex['max_contour_error_mm']:.3f} mm, "
                          f"95th percentile {ex['p95_contour_error_mm']:.3f} mm, "
                          f"{ex['within_fraction']:.1%} within tolerance")
+        feats = (self.extra or {}).get("features")
+        if feats:
+            lines.append("  per feature (plan s / worst / p95 mm): " + "; ".join(
+                f"{k} {v['plan_time_s']:.0f} s / {v['predicted_max_contour_error_mm']:.3f} / "
+                f"{v['predicted_p95_contour_error_mm']:.3f}"
+                + (f" (tol {v['tolerance_mm']:g})" if v.get("tolerance_mm") else "")
+                for k, v in feats.items() if k != "travel"))
         for n in self.notes:
             lines.append(f"  note: {n}")
         return "\n".join(lines)

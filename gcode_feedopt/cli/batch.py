@@ -13,7 +13,8 @@ from ..pipeline import METHODS
 from ..plan.speed import SPEEDS
 from ..procs import signal_name
 from ..profile import load_profile
-from .options import AMAX, STRINGENCY, TOLERANCE, VMAX, speed_policy
+from ..gcode.features import parse_feature_tolerance
+from .options import AMAX, FEATURE_TOLERANCE_HELP, STRINGENCY, TOLERANCE, VMAX, speed_policy
 
 
 @click.command("batch")
@@ -27,6 +28,7 @@ from .options import AMAX, STRINGENCY, TOLERANCE, VMAX, speed_policy
               help="As for optimize (pidd: the digital twin keeps the tolerance).")
 @click.option("--tolerance", type=TOLERANCE, metavar="MM",
               help="Contour-error tolerance E_max, mm (default: the profile's).")
+@click.option("--feature-tolerance", metavar="F=MM,...", help=FEATURE_TOLERANCE_HELP)
 @click.option("--stringency", type=STRINGENCY, metavar="P",
               help="Fraction of samples that must be within tolerance (default: the profile's).")
 @click.option("--vmax", type=VMAX, metavar="MM_S", help="Override the feed limit, mm/s.")
@@ -41,7 +43,8 @@ from .options import AMAX, STRINGENCY, TOLERANCE, VMAX, speed_policy
 @click.option("--allow-slower", is_flag=True,
               help="As for optimize (by default a file our plan would slow down is kept).")
 @click.option("--force", is_flag=True, help="Process files that were processed before.")
-def batch(folder, outdir, jobs, machine, method, tolerance, stringency, vmax, amax, mode,
+def batch(folder, outdir, jobs, machine, method, tolerance, feature_tolerance, stringency, vmax,
+          amax, mode,
           speed, use_slicer_feed, allow_slower, force):
     """Optimize every G-code file in FOLDER; print a summary table; exit 1 if any failed."""
     load_profile(machine)  # a bad machine fails once, here, not once per file
@@ -49,6 +52,9 @@ def batch(folder, outdir, jobs, machine, method, tolerance, stringency, vmax, am
             "vmax_mm_s": vmax, "amax_mm_s2": amax, "mode": mode,
             "speed": speed_policy(speed, use_slicer_feed), "allow_slower": allow_slower,
             "force": force}
+    ft = parse_feature_tolerance(feature_tolerance)
+    if ft is not None:  # only when given: batch's settings record stays as it was
+        opts["feature_tolerance"] = ft
     total = len(find_jobs(folder))
     done = [0]
     tty = sys.stderr.isatty()

@@ -91,3 +91,12 @@ def speed_policy(speed: str, use_slicer_feed: bool) -> str:
     """``--speed``, with the old ``--use-slicer-feed`` flag meaning ``slicer`` (kept so users'
     scripts keep working; it is the default now)."""
     return "slicer" if use_slicer_feed else speed
+
+
+#: --feature-tolerance on optimize and batch (parsed in the command: a bad value is a
+#: one-line error, exit 2)
+FEATURE_TOLERANCE_HELP = (
+    "E_max per slicer feature, e.g. outer_wall=0.05,infill=0.3 ('defaults': outer_wall 0.05, "
+    "inner_wall/skin/bridge 0.1, infill/support/skirt 0.3; 'off': one tolerance). Features: "
+    "outer_wall inner_wall skin infill bridge support skirt travel other; others keep "
+    "--tolerance; travel has none. Default: the profile's limits.feature_tolerance_mm.")
