@@ -67,7 +67,9 @@ class Report:
         if self.predicted_max_contour_error_mm is not None:
             lines.append(f"  predicted contour error: worst {self.predicted_max_contour_error_mm:.3f} mm, "
                          f"95th percentile {self.predicted_p95_contour_error_mm:.3f} mm "
-                         f"(tolerance {self.tolerance_mm:g} mm at {self.stringency:.0%})")
+                         + (f"(tolerance per feature, {self.tolerance_mm:g} mm elsewhere, at "
+                            f"{self.stringency:.0%})" if (self.extra or {}).get("feature_tolerance_mm")
+                            else f"(tolerance {self.tolerance_mm:g} mm at {self.stringency:.0%})"))
         else:
             lines.append(f"  predicted contour error: n/a ({self.method} plans kinematic limits only; "
                          f"tolerance {self.tolerance_mm:g} mm not checked)")

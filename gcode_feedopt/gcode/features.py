@@ -130,14 +130,28 @@ def segment_features(path, program) -> np.ndarray:
     return feats[np.asarray(path.move_index)]
 
 
-def segment_tolerance(seg_features: np.ndarray, feature_tol: dict, default_mm: float,
-                      travel_mm: float = float("inf")) -> np.ndarray:
+def segment_tolerance(seg_features: np.ndarray, feature_tol: dict,
+                      default_mm: float) -> np.ndarray:
     """(N,) tolerance of each segment: its feature's, else ``default_mm`` (untagged moves and
-    features not set); travel has no contour constraint unless set."""
+    features not set).
+
+    Travel deposits nothing, so the optimizer constrains no travel sample except the few at
+    its ends that still cover an extrusion (optimize.free.ContourRules: the nozzle running
+    past a wall's end point); those belong to that extrusion, so a travel segment gets the
+    tighter tolerance of the extruding segments before and after it — unless ``travel`` is
+    named in ``feature_tol``."""
     tol = np.full(seg_features.size, float(default_mm))
-    table = {"travel": travel_mm, **feature_tol}
-    for f, v in table.items():
+    for f, v in feature_tol.items():
         tol[seg_features == f] = float(v)
+    if "travel" not in feature_tol:
+        trav = seg_features == "travel"
+        if trav.any() and not trav.all():
+            idx = np.arange(tol.size)
+            prev = np.maximum.accumulate(np.where(trav, -1, idx))
+            nxt = np.minimum.accumulate(np.where(trav, tol.size, idx)[::-1])[::-1]
+            t_prev = np.where(prev >= 0, tol[np.maximum(prev, 0)], np.inf)
+            t_next = np.where(nxt < tol.size, tol[np.minimum(nxt, tol.size - 1)], np.inf)
+            tol[trav] = np.minimum(t_prev, t_next)[trav]
     return tol
 
 
