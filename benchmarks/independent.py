@@ -8,6 +8,11 @@ learning (after a log's warm-up). Then the coverage pooled over plants drawn fro
 spread, as the optimizer's chance constraint assumes it.
 
     python benchmarks/independent.py            # ~1–2 min on 2 cores
+    python benchmarks/independent.py --data DIR # another data set in benchA's layout
+
+``--data`` takes any directory laid out as benchA is (``frf/x_*.csv``, ``frf/y_*.csv``,
+``logs/*.csv`` with ``t,x_cmd,y_cmd,x,y``, ``labels.json``): a machine we have not seen is
+judged the same way (benchmarks/foreign.py does so for machines of tests/foreign/machines.py).
 
 The end-to-end optimizer figures on a benchA-built plant are in benchmarks/end_to_end.py.
 """
@@ -39,15 +44,15 @@ KEY = {"delay": "seconds", "backlash": "magnitude_mm", "friction": "magnitude_mm
        "resonance_shift": "frequency_hz", "gain": "scale", "cross_coupling": "mm_per_mm_s2"}
 
 
-def bench_a_profile():
-    frf = DATA / "frf"
+def bench_a_profile(data=DATA, name="benchA"):
+    frf = pathlib.Path(data) / "frf"
     prof, _ = build_from_frfs(load_profile("ender3pro"),
-                              {a: sorted(frf.glob(f"{a}_*.csv")) for a in "xy"}, name="benchA")
+                              {a: sorted(frf.glob(f"{a}_*.csv")) for a in "xy"}, name=name)
     return prof
 
 
-def read(name):
-    a = np.loadtxt(DATA / "logs" / name, delimiter=",", skiprows=1)
+def read(name, data=DATA):
+    a = np.loadtxt(pathlib.Path(data) / "logs" / name, delimiter=",", skiprows=1)
     cmd = np.column_stack([a[:, 1:3], np.zeros(len(a))])
     pos = np.column_stack([a[:, 3:5], np.zeros(len(a))])
     return cmd, pos
@@ -93,34 +98,68 @@ def param_error(truth, got):
     return ", ".join(errs) or "-"
 
 
-def main():
-    warnings.simplefilter("ignore")
-    if not DATA.is_dir():
-        sys.exit(f"benchA not found at {DATA}")
-    prof = bench_a_profile()
-    labels = json.loads((DATA / "labels.json").read_text())
-    print("benchA: profile from its 12 FRFs (profile build); held-out RMS of the twin's mean, "
-          "µm x/y; 95 % interval coverage as predict ships it, % x/y\n")
-    print("| log | truth | diagnosis | parameter error | held-out RMS before | after | "
-          "coverage no learning | with learning | s |")
-    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+def evaluate(data=DATA, prof=None):
+    """One row per log of the data set: truth, diagnosis, parameter error, held-out RMS
+    before / after (µm), prior RMS error of the twin's mean and of "actual = command" (µm),
+    coverage without / with learning (%), seconds."""
+    data = pathlib.Path(data)
+    prof = prof or bench_a_profile(data)
+    labels = json.loads((data / "labels.json").read_text())
+    rows = []
     for e in labels["logs"]:
         name = e["file"].split("/")[-1]
-        cmd, pos = read(name)
+        cmd, pos = read(name, data)
         w0 = log_warmup(cmd[:, :2], prof.ts_s, prof)
         log = MotionLog(ts_s=prof.ts_s, cmd_mm=cmd, pos_mm=pos, source=name, kind="encoder",
                         warmup=w0)
         t0 = time.perf_counter()
         d = diagnose_log(log, prof)
         dt = time.perf_counter() - t0
-        ho = d.holdout_rms_mm
-        c0 = coverage(prof, cmd, pos, w0, False)
-        c1 = coverage(prof, cmd, pos, w0, True)
-        print(f"| {name[:-4]} | {describe(e['effects'])} | {describe(d.effects)} | "
-              f"{param_error(e['effects'], d.effects)} | "
-              f"{ho['before']['x'] * 1e3:.1f} / {ho['before']['y'] * 1e3:.1f} | "
-              f"{ho['after']['x'] * 1e3:.1f} / {ho['after']['y'] * 1e3:.1f} | "
-              f"{c0[0]:.1f} / {c0[1]:.1f} | {c1[0]:.1f} / {c1[1]:.1f} | {dt:.1f} |")
+        prior, none = [], []
+        for i, ax in enumerate("xy"):
+            mean, _ = axis_twin(prof, ax).run(cmd[:, i], pos[:, i], learn=False, warmup=w0)
+            prior.append(1e3 * np.sqrt(np.mean((pos[w0:, i] - mean[w0:]) ** 2)))
+            none.append(1e3 * np.sqrt(np.mean((pos[w0:, i] - cmd[w0:, i]) ** 2)))
+        rows.append({"log": name[:-4], "truth": e["effects"], "diagnosis": d.effects,
+                     "truth_s": describe(e["effects"]), "diagnosis_s": describe(d.effects),
+                     "param_error": param_error(e["effects"], d.effects),
+                     "before": d.holdout_rms_mm["before"], "after": d.holdout_rms_mm["after"],
+                     "prior_um": prior, "command_um": none,
+                     "cov0": coverage(prof, cmd, pos, w0, False),
+                     "cov1": coverage(prof, cmd, pos, w0, True), "s": dt})
+    return rows
+
+
+def print_rows(rows):
+    print("| log | truth | diagnosis | parameter error | held-out RMS before | after | "
+          "prior twin / command-only RMS | coverage no learning | with learning | s |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+    for r in rows:
+        ho0, ho1, p, c = r["before"], r["after"], r["prior_um"], r["command_um"]
+        print(f"| {r['log']} | {r['truth_s']} | {r['diagnosis_s']} | {r['param_error']} | "
+              f"{ho0['x'] * 1e3:.1f} / {ho0['y'] * 1e3:.1f} | "
+              f"{ho1['x'] * 1e3:.1f} / {ho1['y'] * 1e3:.1f} | "
+              f"{p[0]:.1f} / {c[0]:.1f}, {p[1]:.1f} / {c[1]:.1f} | "
+              f"{r['cov0'][0]:.1f} / {r['cov0'][1]:.1f} | {r['cov1'][0]:.1f} / {r['cov1'][1]:.1f} | "
+              f"{r['s']:.1f} |")
+
+
+def main():
+    import argparse
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--data", type=pathlib.Path, default=DATA,
+                    help="a data set in benchA's layout (default ../shared/data/independent)")
+    args = ap.parse_args()
+    warnings.simplefilter("ignore")
+    if not args.data.is_dir():
+        sys.exit(f"data set not found at {args.data}")
+    prof = bench_a_profile(args.data, args.data.name)
+    print(f"{args.data.name}: profile from its FRFs (profile build); held-out RMS of the twin's "
+          "mean, µm x/y; prior RMS error of the twin's mean vs of actual = command, µm x, y; "
+          "95 % interval coverage as predict ships it, % x/y\n")
+    print_rows(evaluate(args.data, prof))
+    if args.data != DATA:
+        return
 
     # pooled over plants drawn from the profile's own spread (the population the chance
     # constraint is about), on benchA's butterfly command

@@ -5,6 +5,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import pathlib
 import time
 from dataclasses import dataclass
@@ -12,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import AlreadyProcessedError, FeedOptError, GCodeError, UsageError
+from .gcode.metadata import rescale_times
 from .gcode.path import build_path
 from .gcode.reader import gc_paused, read_file
 from .gcode.verify import verify
@@ -232,13 +234,17 @@ def check_run_outputs(in_path, out_path, opts: Options, extra: dict | None = Non
     return targets
 
 
-def optimize_file(in_path, out_path, profile, opts: Options) -> Report:
-    """Optimize ``in_path`` and write ``out_path`` (may be the same file: in place)."""
+def optimize_file(in_path, out_path, profile, opts: Options, progress=None) -> Report:
+    """Optimize ``in_path`` and write ``out_path`` (may be the same file: in place).
+    ``progress``: called with the name of each stage as it starts (the CLI shows it on a
+    terminal; results do not depend on it)."""
+    say = progress or (lambda stage: None)
     in_path = pathlib.Path(in_path)
     out_path = pathlib.Path(out_path) if out_path is not None else in_path
     targets = check_run_outputs(in_path, out_path, opts)
     wall = {}
     t0 = time.perf_counter()
+    say("reading")
     program = read_for(in_path, profile)
     wall["parse"] = time.perf_counter() - t0
     if program.processed_line is not None and not opts.force:
@@ -255,6 +261,7 @@ def optimize_file(in_path, out_path, profile, opts: Options) -> Report:
     t0 = time.perf_counter()
     check_plan_size(path, profile, opts.vmax_mm_s, opts.amax_mm_s2, opts.speed == "slicer",
                     fw_limits, where=str(in_path))
+    say(f"planning {path.n_segments:,} moves ({opts.method})")
     tol, seg_feats, tol_notes = tolerance_for(path, program, profile, opts)
     sched = plan(path, profile, opts, fw_limits, tol)
     t_in = input_time_s(path, profile, opts, fw_limits)
@@ -264,6 +271,7 @@ def optimize_file(in_path, out_path, profile, opts: Options) -> Report:
     # objects (gc_paused)
     with gc_paused():
         t0 = time.perf_counter()
+        say("writing")
         cells = sched.info.get("cells")
         axis_a = effective_limits(profile, opts.vmax_mm_s, opts.amax_mm_s2)[2]
         clamp = firmware.accel_clamp(program, profile, axis_a)
@@ -286,6 +294,7 @@ def optimize_file(in_path, out_path, profile, opts: Options) -> Report:
         # limits itself, gcode.writer._PlanLimits); the input also at the profile's values,
         # to tell the saving from raised limits apart from the plan's
         configured = firmware.as_configured(profile)
+        say("timing both files on the firmware model")
         fw_in = firmware.estimate_time_s(program, configured)
         fw_out = firmware.estimate_time_s(out_program, configured)
         fw_in_raised = (fw_in if configured is profile
@@ -294,6 +303,7 @@ def optimize_file(in_path, out_path, profile, opts: Options) -> Report:
     executed = None
     if sched.method != "kinematic":
         t0 = time.perf_counter()
+        say("executing the output on the firmware model and plant")
         executed = execute_check(out_program, configured,
                                  opts.tolerance_mm or profile.limits.tolerance_mm)
         wall["execute"] = time.perf_counter() - t0
@@ -305,6 +315,9 @@ def optimize_file(in_path, out_path, profile, opts: Options) -> Report:
     # an output that runs slower than the input is not written unless asked (--allow-slower):
     # in place the file stays as it was, with -o the input goes there unchanged
     keep = fw_out > fw_in * (1.0 + SLOWER_TOLERANCE) and not opts.allow_slower
+    # the time lines the slicer wrote (;TIME:, M73, estimated printing time) carry the time the
+    # summary reports: the firmware model's of this very file, not the plan's
+    result = dataclasses.replace(result, data=rescale_times(result.data, sched.duration_s, fw_out))
     if not opts.dry_run:
         t0 = time.perf_counter()
         if keep:
@@ -352,6 +365,14 @@ def optimize_file(in_path, out_path, profile, opts: Options) -> Report:
                          f"{conf} mm/s²) and the configured values again after its last; the "
                          f"input alone would take {fw_in_raised:.1f} s at those limits, "
                          f"{fw_in:.1f} s as configured")
+    rate = 1.0 / profile.ts_s
+    if opts.mode == "sampled" and rate > profile.firmware.max_lines_per_s and not keep:
+        rep.notes.append(
+            f"--mode sampled writes one motion line per {1000 * profile.ts_s:g} ms, {rate:.0f} "
+            f"lines/s while moving, above {profile.name}'s max_lines_per_s "
+            f"{profile.firmware.max_lines_per_s:g} (what its serial link and planner buffer "
+            "carry): the printer may pause between lines and blob; use --mode refeed (the "
+            "default), or raise firmware.max_lines_per_s if your host streams faster")
     if program.lines and not program.lines[-1].endswith(b"\n"):
         rep.notes.append(f"the last line ({len(program.lines)}) has no line end: if the file was "
                          "cut short (an interrupted upload or copy), the print is incomplete; "

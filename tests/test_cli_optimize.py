@@ -82,6 +82,18 @@ def test_sampled_mode_states_ts_and_trajectory_csv_rows_per_ts(src, tmp_path):
     assert np.allclose(np.diff(t), 0.002, atol=1e-6)
 
 
+@pytest.mark.parametrize("machine,warned", [("ender3pro", True), ("voron24", False)])
+def test_sampled_mode_above_the_line_budget_says_so(src, tmp_path, machine, warned):
+    """500 lines/s against ender3pro's serial budget of 300 is stated; voron24 (Klipper's
+    host queue, 2000) is within."""
+    rep = tmp_path / "r.json"
+    res = _run([src, "-o", tmp_path / "s.gcode", "--machine", machine, "--mode", "sampled",
+                "--method", "kinematic", "--allow-slower", "--report", rep])
+    assert res.exit_code == 0, res.output
+    notes = " ".join(json.loads(rep.read_text())["notes"])
+    assert ("max_lines_per_s" in notes) == warned, notes
+
+
 @pytest.mark.parametrize("method", ["conservative", "pb", "pidd", "oracle"])
 def test_twin_methods_write_verified_output(src, tmp_path, method):
     before = src.read_bytes()
@@ -145,3 +157,41 @@ def test_slower_output_is_not_written_unless_asked(tmp_path):
     r = CliRunner().invoke(cli, ["batch", str(jobs), "-m", "ender3pro", "-j", "1"])
     assert r.exit_code == 0, r.output
     assert "kept" in r.output and (jobs / "part.gcode").read_bytes() == before
+
+
+def test_progress_on_a_terminal_only_and_output_unchanged(tmp_path):
+    """Issue 18: a long run is not silent on a terminal; a pipe (print hosts, logs) gets the
+    summary only; the G-code is the same either way."""
+    import os
+    import pty
+    import subprocess
+    import sys
+
+    def run(out, tty):
+        cmd = [sys.executable, "-m", "gcode_feedopt", str(SAMPLE), "-o", str(out),
+               "--machine", "ender3pro", "--method", "kinematic"]
+        if not tty:
+            r = subprocess.run(cmd, capture_output=True)
+            assert r.returncode == 0, r.stderr
+            return r.stderr
+        master, slave = pty.openpty()
+        p = subprocess.Popen(cmd, stderr=slave, stdout=subprocess.DEVNULL)
+        os.close(slave)
+        buf = b""
+        while True:
+            try:
+                chunk = os.read(master, 4096)
+            except OSError:
+                break
+            if not chunk:
+                break
+            buf += chunk
+        assert p.wait() == 0, buf
+        os.close(master)
+        return buf
+
+    a, b = tmp_path / "tty.gcode", tmp_path / "pipe.gcode"
+    on_tty, on_pipe = run(a, True), run(b, False)
+    assert b"planning" in on_tty and b"reading" in on_tty
+    assert b"planning" not in on_pipe and b"\r" not in on_pipe
+    assert a.read_bytes() == b.read_bytes()

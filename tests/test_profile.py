@@ -89,3 +89,35 @@ def test_profile_build_show_check(tmp_path):
     assert modes[0]["freq_hz"] == 42.0 and "damping" in modes[0]
     r = CliRunner().invoke(cli, ["profile", "check", "nomad3"])
     assert r.exit_code == 0 and "ok" in r.output
+
+
+def test_voron24_is_a_klipper_corexy_from_the_measured_belt_test():
+    p = load_profile("voron24")
+    assert p.firmware.flavour == "klipper" and p.firmware.configured_accel_mm_s2 == 3000.0
+    x, y = p.axes["x"].frf, p.axes["y"].frf
+    assert x.n_measurements == 4 and np.array_equal(x.response, y.response)  # (G_A + G_B)/2
+    modes = [m.freq_hz for m in p.axes["x"].modes]  # belts A / B: 46.0 / 45.2, 66.1 / 64.8 Hz
+    assert abs(modes[0] - 45.6) < 1.0 and abs(modes[1] - 65.5) < 1.5, modes
+    assert p.axes["x"].provenance["source"].startswith("GitHub agravelot/voron2-config")
+
+
+def test_identify_names_describes_and_sets_the_flavour(tmp_path):
+    import subprocess
+    import sys
+
+    from gcode_feedopt.profile.builtin import MEASURED, VORON_BELTS
+
+    if not MEASURED.is_dir():
+        pytest.skip("needs ../shared/data/measured")
+    out = tmp_path / "mine.yaml"
+    cmd = [sys.executable, "-m", "gcode_feedopt", "identify", "--x", str(MEASURED / VORON_BELTS[0]),
+           "-o", str(out), "--flavour", "klipper"]
+    r = subprocess.run(cmd, capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    p = load_profile(out)
+    assert p.name == "mine" and p.firmware.flavour == "klipper" and not p.firmware.g91_relative_e
+    assert p.description.startswith("identified from voron2.4_") and "ender3pro" in p.description
+    r = subprocess.run(cmd + ["--name", "v", "--description", "my Voron"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    p = load_profile(out)
+    assert (p.name, p.description) == ("v", "my Voron")

@@ -43,9 +43,11 @@ from .options import AMAX, FEATURE_TOLERANCE_HELP, STRINGENCY, TOLERANCE, VMAX, 
 @click.option("--allow-slower", is_flag=True,
               help="As for optimize (by default a file our plan would slow down is kept).")
 @click.option("--force", is_flag=True, help="Process files that were processed before.")
+@click.option("--report", "report_dir", type=click.Path(file_okay=False, path_type=pathlib.Path),
+              metavar="DIR", help="Write each file's JSON report (as optimize --report) to "
+                                  "DIR/<name>.json; DIR is created if its parent exists.")
 def batch(folder, outdir, jobs, machine, method, tolerance, feature_tolerance, stringency, vmax,
-          amax, mode,
-          speed, use_slicer_feed, allow_slower, force):
+          amax, mode, speed, use_slicer_feed, allow_slower, force, report_dir):
     """Optimize every G-code file in FOLDER; print a summary table; exit 1 if any failed."""
     load_profile(machine)  # a bad machine fails once, here, not once per file
     opts = {"method": method, "tolerance_mm": tolerance, "stringency": stringency,
@@ -64,7 +66,8 @@ def batch(folder, outdir, jobs, machine, method, tolerance, feature_tolerance, s
         if tty:
             click.echo(f"\r[{done[0]}/{total}] {r.file[:50]:50s}", err=True, nl=False)
 
-    results, signum = run_batch(folder, outdir, machine, opts, jobs, progress)
+    results, signum = run_batch(folder, outdir, machine, opts, jobs, progress,
+                                report_dir=report_dir)
     if tty:
         click.echo("", err=True)
     click.echo(table(results))

@@ -48,7 +48,7 @@ def format_table(rows) -> str:
 
 @click.command("compare")
 @click.argument("gcode", type=click.Path(exists=True, dir_okay=False))
-@click.option("--machine", "-m", required=True, help="Profile name (ender3pro, nomad3) or YAML path.")
+@click.option("--machine", "-m", required=True, help="Profile name (ender3pro, nomad3, voron24) or YAML path.")
 @click.option("--methods", default="kinematic,conservative,pb,dd,pidd,oracle", show_default=True,
               help="Comma-separated methods to run.")
 @click.option("--seed", type=SEED, default=0, show_default=True, help="Plant seed (same for all methods).")

@@ -3,6 +3,7 @@ extended model on held-out data (closedloop.diagnose)."""
 
 from __future__ import annotations
 
+import functools
 import json
 
 import click
@@ -18,7 +19,7 @@ from .options import Bounded, profile_files
 
 @click.command("diagnose")
 @click.argument("log_path", metavar="LOG", type=click.Path(exists=True, dir_okay=False))
-@click.option("--machine", "-m", required=True, help="Profile name (ender3pro, nomad3) or YAML path.")
+@click.option("--machine", "-m", required=True, help="Profile name (ender3pro, nomad3, voron24) or YAML path.")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False),
               help="Write the diagnosis as JSON here ('-' for stdout).")
 @click.option("--plot", "plot_path", type=click.Path(dir_okay=False),
@@ -56,23 +57,24 @@ def diagnose(log_path, machine, json_path, plot_path, fit_fraction, out_profile,
     out["log"] = {"path": log.source, "kind": log.kind, "samples": int(log.cmd_mm.shape[0]),
                   "ts_s": log.ts_s, "warmup_samples": int(log.warmup), **log.info}
     rr, ho = d.residual_rms_mm, d.holdout_rms_mm
-    click.echo(f"residual RMS  x {rr['x'] * 1e3:.2f} µm   y {rr['y'] * 1e3:.2f} µm")
+    say = functools.partial(click.echo, err=json_path == "-")  # keep stdout pure JSON then
+    say(f"residual RMS  x {rr['x'] * 1e3:.2f} µm   y {rr['y'] * 1e3:.2f} µm")
     for e in d.effects:
         params = ", ".join(f"{k}={v:.5g}" if isinstance(v, float) else f"{k}={v}"
                            for k, v in e["params"].items() if k not in ("tie", "phase_rad"))
-        click.echo(f"effect        {e['kind']} on {e['axis']} ({params}) "
+        say(f"effect        {e['kind']} on {e['axis']} ({params}) "
                    f"confidence {e['confidence']:.2f}")
         tie = e["params"].get("tie")
         if tie:
             tp = ", ".join(f"{k}={v:.5g}" for k, v in tie["params"].items() if isinstance(v, float))
-            click.echo(f"              tie: {tie['kind']} ({tp}) explains the held-out part as "
+            say(f"              tie: {tie['kind']} ({tp}) explains the held-out part as "
                        "well; the two are not told apart by this log")
     for ax in ("x", "y"):
         line = (f"held-out RMS  {ax}: {ho['before'][ax] * 1e3:.2f} -> {ho['after'][ax] * 1e3:.2f} µm "
                 "(the extended profile)")
         if "after_fitted" in ho and abs(ho["after_fitted"][ax] - ho["after"][ax]) > 1e-7:
             line += f", {ho['after_fitted'][ax] * 1e3:.2f} µm with this log's fitted phase"
-        click.echo(line)
+        say(line)
     if json_path:
         text = json.dumps(out, indent=2)
         if json_path == "-":
@@ -87,7 +89,7 @@ def diagnose(log_path, machine, json_path, plot_path, fit_fraction, out_profile,
         ext = extend_profile(profile, d.effects, source=str(log_path))
         ext = dataclasses.replace(ext, name=ext.name + "-extended")
         save_profile(ext, out_profile)
-        click.echo(f"wrote {out_profile}")
+        say(f"wrote {out_profile}")
     if plot_path:
         with output_path(targets["--plot"]) as tmp:
             plot_diagnosis(tmp, d, log.ts_s, title=str(log_path))

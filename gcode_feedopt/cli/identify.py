@@ -54,13 +54,21 @@ from .options import Bounded, profile_files
               help="raw, current generator: SWEEPING_PERIOD, s (0 = no sweeping)")
 @click.option("--segments", type=click.IntRange(2, 16), default=4, show_default=True,
               help="raw: FRFs per recording (interleaved window subsets, the spread)")
+@click.option("--flavour", type=click.Choice(["marlin", "klipper"]), default=None,
+              help="the machine's firmware, if not the base profile's (its planner model: "
+                   "junctions, accelerations, the commands that set limits; docs/firmware.md)")
+@click.option("--name", default=None, help="the new profile's name  [the output file's stem]")
+@click.option("--description", default=None,
+              help="its description  [identified from the files on BASE's limits]")
 def identify(x_files, y_files, base, n_modes, output, plot_path, excitation, freq_start,
-             freq_end, hz_per_sec, accel_per_hz, sweeping_accel, sweeping_period, segments):
+             freq_end, hz_per_sec, accel_per_hz, sweeping_accel, sweeping_period, segments,
+             flavour, name, description):
     """Build a profile from FRF files, Klipper spectra or Klipper raw recordings.
 
     \b
     gcode-feedopt identify --x resonances_x.csv --y resonances_y.csv -o mine.yaml
     gcode-feedopt identify --x raw_data_x.csv --y raw_data_y.csv -o mine.yaml --plot fit.png
+    gcode-feedopt identify --x raw_x.csv --y raw_y.csv --base voron24 --flavour klipper -o v.yaml
     """
     if not x_files and not y_files:
         raise click.UsageError("give at least one --x or --y file")
@@ -96,8 +104,17 @@ def identify(x_files, y_files, base, n_modes, output, plot_path, excitation, fre
     prov["identified_from"] = {"x": list(x_files), "y": list(y_files), "base": base}
     twin = dataclasses.replace(base_p.twin, priors={})
     out = pathlib.Path(output)
-    new = dataclasses.replace(base_p, name=out.stem, axes=axes, provenance=prov, twin=twin,
-                              source_path=None)
+    files = ", ".join(pathlib.Path(f).name for f in (*x_files, *y_files))
+    firmware = base_p.firmware
+    if flavour and flavour != firmware.flavour:
+        # G91 moves E relatively on Marlin, not on Klipper (docs/firmware.md)
+        firmware = dataclasses.replace(firmware, flavour=flavour,
+                                       g91_relative_e=flavour == "marlin")
+    new = dataclasses.replace(
+        base_p, name=name or out.stem, axes=axes, provenance=prov, twin=twin, source_path=None,
+        firmware=firmware,
+        description=description or (f"identified from {files} on {base_p.name} limits"
+                                    + (f", {flavour} firmware" if flavour else "")))
     save_profile(new, out)
     click.echo(f"wrote {out}")
     if plot_path:

@@ -15,7 +15,7 @@ from .options import profile_files
 @click.command("learn")
 @click.argument("logs", metavar="LOG...", nargs=-1, required=True,
                 type=click.Path(exists=True, dir_okay=False))
-@click.option("--machine", "-m", required=True, help="Profile name (ender3pro, nomad3) or YAML path.")
+@click.option("--machine", "-m", required=True, help="Profile name (ender3pro, nomad3, voron24) or YAML path.")
 @click.option("--output", "-o", "out_path", required=True, type=click.Path(dir_okay=False),
               help="Updated profile (YAML); its twin.priors record what was learned from what.")
 @click.option("--skip-bad", is_flag=True, help="Skip a refused log (one line on stderr) instead of stopping.")

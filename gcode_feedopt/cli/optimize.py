@@ -14,8 +14,8 @@ from ..outputs import write_text
 from ..pipeline import METHODS, Options, check_run_outputs, optimize_file
 from ..profile import load_profile
 from ..plan.speed import SPEEDS
-from .options import (AMAX, FEATURE_TOLERANCE_HELP, STRINGENCY, TOLERANCE, VMAX, profile_files,
-                      speed_policy)
+from .options import (AMAX, FEATURE_TOLERANCE_HELP, STRINGENCY, TOLERANCE, VMAX, Progress,
+                      profile_files, speed_policy)
 
 
 @click.command("optimize")
@@ -23,7 +23,7 @@ from .options import (AMAX, FEATURE_TOLERANCE_HELP, STRINGENCY, TOLERANCE, VMAX,
 @click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=pathlib.Path),
               help="Write here; without it the input is edited in place (PrusaSlicer's contract).")
 @click.option("--machine", "-m", required=True,
-              help="Built-in profile (ender3pro, nomad3) or a profile .yaml path.")
+              help="Built-in profile (ender3pro, nomad3, voron24) or a profile .yaml path.")
 @click.option("--method", type=click.Choice(METHODS), default="pidd", show_default=True,
               help="pidd: the digital twin keeps the contour error within the tolerance; "
                    "kinematic: the firmware's limits only (fastest, no error model); "
@@ -88,7 +88,12 @@ def _run(gcode, output, machine, method, tolerance, stringency, vmax, amax, mode
     # every output checked before anything is read, planned or written
     targets = check_run_outputs(gcode, output, opts, {"--report": report_path},
                                 inputs=profile_files(machine))
-    rep = optimize_file(gcode, output, profile, opts)
+    progress = Progress(pathlib.Path(gcode).name) if not quiet and sys.stderr.isatty() else None
+    try:
+        rep = optimize_file(gcode, output, profile, opts, progress=progress)
+    finally:
+        if progress is not None:
+            progress.done()
     if in_slicer:
         rep.notes.extend(prusaslicer.limit_disagreements(profile))
         name = prusaslicer.output_name()

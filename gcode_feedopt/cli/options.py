@@ -100,3 +100,47 @@ FEATURE_TOLERANCE_HELP = (
     "inner_wall/skin/bridge 0.1, infill/support/skirt 0.3; 'off': one tolerance). Features: "
     "outer_wall inner_wall skin infill bridge support skirt travel other; others keep "
     "--tolerance; travel has none. Default: the profile's limits.feature_tolerance_mm.")
+
+
+class Progress:
+    """One self-overwriting line on stderr naming the stage and the time so far, refreshed
+    every second (the CLI creates one only when stderr is a terminal and not --quiet: print
+    hosts, pipes and logs get nothing). Call it with a stage name; ``done`` stops it and clears
+    the line."""
+
+    def __init__(self, name: str):
+        import threading
+        import time
+
+        self._clock = time.perf_counter
+        self.t0 = self._clock()
+        self.name = name
+        self.stage = ""
+        self.width = 0
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._tick, daemon=True)
+        self._thread.start()
+
+    def _tick(self) -> None:
+        while not self._stop.wait(1.0):
+            self._show()
+
+    def _show(self) -> None:
+        with self._lock:
+            if not self.stage or self._stop.is_set():
+                return
+            text = f"{self.name}: {self.stage} … {self._clock() - self.t0:.0f} s"
+            click.echo("\r" + text.ljust(self.width), err=True, nl=False)
+            self.width = max(self.width, len(text))
+
+    def __call__(self, stage: str) -> None:
+        self.stage = stage
+        self._show()
+
+    def done(self) -> None:
+        with self._lock:
+            self._stop.set()
+            if self.width:
+                click.echo("\r" + " " * self.width + "\r", err=True, nl=False)
+        self._thread.join(timeout=2.0)

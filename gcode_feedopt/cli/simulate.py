@@ -47,7 +47,7 @@ def _parse_effects(ctx, param, values):
 
 @click.command("simulate")
 @click.argument("gcode", type=click.Path(exists=True, dir_okay=False))
-@click.option("--machine", "-m", required=True, help="Profile name (ender3pro, nomad3) or YAML path.")
+@click.option("--machine", "-m", required=True, help="Profile name (ender3pro, nomad3, voron24) or YAML path.")
 @click.option("--seed", type=SEED, default=0, show_default=True,
               help="Seed of the FRF draw (the machine) and of the sensor noise.")
 @click.option("--effect", "effects", multiple=True, callback=_parse_effects, metavar="SPEC",

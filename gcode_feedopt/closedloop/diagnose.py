@@ -30,7 +30,8 @@ then refined. A kind may have two forms, the one that fits better is taken (the 
 - ``periodic_position`` (``wavelength_mm``, ``amplitude_mm``): a sinusoid of the commanded
   position (tooth pitch, screw runout) through the dynamics (``dynamics``) or at the output;
 - ``cross_coupling`` (``from_axis`` and ``mm_per_mm_s2`` or ``coefficient``): the other axis's
-  acceleration through this axis's dynamics (form ``acceleration``, a frame force), or its
+  acceleration through this axis's dynamics (form ``acceleration``, a frame force; form
+  ``belt``, through them twice: a corexy's mismatched belts, ``twin.extensions``), or its
   position (form ``position``, a skew).
 
 **3. The test (stated).** Candidates are ranked by the sum of squares they explain on the fit
@@ -600,17 +601,18 @@ def _candidates(A: _Axis, base: _Model, named_kinds, other: _Axis, base_other: _
     po = other.p0
     acc = np.gradient(np.gradient(po, ts), ts)
     G_acc = respond(acc, hd)[:, None]
+    G_belt = respond(G_acc[:, 0], hd)[:, None]
     G_pos = (po - po[0])[:, None]
-    v_acc, v_pos = score_extra(G_acc), score_extra(G_pos)
-    if v_acc >= v_pos:
-        m = with_extra(G_acc)
-        params = {"from_axis": other.ax, "mm_per_mm_s2": float(m.w_mean[-1]), "form": "acceleration"}
-        form = "acceleration"
+    v_acc, v_belt, v_pos = score_extra(G_acc), score_extra(G_belt), score_extra(G_pos)
+    if max(v_acc, v_belt) >= v_pos:
+        form = "acceleration" if v_acc >= v_belt else "belt"
+        m = with_extra(G_acc if form == "acceleration" else G_belt)
+        params = {"from_axis": other.ax, "mm_per_mm_s2": float(m.w_mean[-1]), "form": form}
     else:
         m = with_extra(G_pos)
         params = {"from_axis": other.ax, "coefficient": float(m.w_mean[-1]), "form": "position"}
         form = "position"
-    out.append(("cross_coupling", form, params, m, 2, 2))
+    out.append(("cross_coupling", form, params, m, 3, 2))
     return out
 
 

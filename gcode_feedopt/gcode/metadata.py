@@ -81,3 +81,35 @@ def _split_ending(raw: bytes) -> tuple[bytes, bytes]:
     if raw.endswith(b"\n"):
         return raw[:-1], b"\n"
     return raw, b""
+
+
+def rescale_times(data: bytes, plan_total_s: float, total_s: float) -> bytes:
+    """``data`` (a written file) with its time lines moved from the plan's total to
+    ``total_s`` — the firmware model's time of the very file, which the summary reports: the
+    total as is, each elapsed time and time left scaled by total_s / plan_total_s (the plan and
+    the firmware model part by a fraction of a percent, spread over the print). Lines that are
+    not time metadata are untouched; ``data`` is returned as is when the totals agree."""
+    if plan_total_s <= 0 or abs(total_s - plan_total_s) < 1e-9:
+        return data
+    k = total_s / plan_total_s
+    up = MetadataUpdater(None, total_s)
+    out = []
+    for raw in data.splitlines(keepends=True):
+        if raw[:1] not in (b";", b"M", b"m"):  # motion and most lines: nothing to look at
+            out.append(raw)
+            continue
+        body, _ = _split_ending(raw)
+        t_here = None
+        m = _ELAPSED.match(body)
+        if m:
+            t_here = float(body[len(b";TIME_ELAPSED:"):m.end()]) * k
+        else:
+            m = _M73.match(body)
+            if m:
+                words = {w[:1].upper(): w[1:] for w in m.group(2).split()}
+                pct = words.get(b"P", words.get(b"Q"))
+                t_here = float(pct) / 100.0 * total_s if pct is not None else None
+        new = up.update(0, raw, t_here if t_here is not None else 0.0) if (
+            _TIME.match(body) or _EST.match(body) or t_here is not None) else None
+        out.append(raw if new is None else new)
+    return b"".join(out)

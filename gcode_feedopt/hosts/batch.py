@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 from ..errors import FeedOptError
 from ..gcode.reader import IDENT_PREFIX
-from ..outputs import make_output_folder
+from ..outputs import make_output_folder, write_text
 from ..pipeline import Options, optimize_file, run_settings
 from ..procs import acknowledge, worker_pool
 from ..profile import load_profile
@@ -56,8 +56,10 @@ def recorded_settings(path: pathlib.Path) -> str | None:
     return line[a + 2:b].decode("latin-1") if 0 <= a < b else None
 
 
-def run_one(src: str, dst: str, machine: str, opts_dict: dict) -> JobResult:
-    """One job, in a worker process. Never raises for a bad file: returns its status."""
+def run_one(src: str, dst: str, machine: str, opts_dict: dict,
+            report: str | None = None) -> JobResult:
+    """One job, in a worker process. Never raises for a bad file: returns its status.
+    ``report``: where its JSON report goes (written when the file was processed)."""
     src_p, dst_p = pathlib.Path(src), pathlib.Path(dst)
     try:
         if already_processed(src_p) and not opts_dict.get("force"):
@@ -71,6 +73,8 @@ def run_one(src: str, dst: str, machine: str, opts_dict: dict) -> JobResult:
                 and not opts_dict.get("force"):
             return JobResult(src_p.name, "skipped", message="output up to date")
         rep = optimize_file(src_p, dst_p, profile, opts)
+        if report:
+            write_text(report, rep.to_json() + "\n", "--report")
         kept = rep.extra.get("kept_input")
         if kept:
             slower = 100.0 * (kept["plan_output_time_s"] / rep.input_time_s - 1.0)
@@ -98,14 +102,19 @@ def _written_since(dst: pathlib.Path, before) -> bool:
 
 
 def run_batch(folder: pathlib.Path, outdir: pathlib.Path | None, machine: str, opts_dict: dict,
-              jobs: int, progress=None) -> tuple[list[JobResult], int | None]:
+              jobs: int, progress=None, *,
+              report_dir: pathlib.Path | None = None) -> tuple[list[JobResult], int | None]:
     """Process every G-code file in ``folder``. Returns the results in file order and, when
     Ctrl-C or SIGTERM stopped the batch, the signal number (else None): the workers are then
     stopped at once (a file being written keeps its old content, no temporary file is left),
     nothing queued starts, and each file not finished is marked ``interrupted``."""
     files = find_jobs(folder)
+    if report_dir is not None and not report_dir.parent.is_dir():
+        make_output_folder(report_dir, "--report")  # its one-line error, before anything is made
     if outdir is not None:
         make_output_folder(outdir, "-o")  # the output folder itself; its parent must exist
+    if report_dir is not None:
+        make_output_folder(report_dir, "--report")
     results: dict[str, JobResult] = {}
     dsts = {f.name: (outdir or folder) / f.name for f in files}
     before = {}
@@ -121,7 +130,9 @@ def run_batch(folder: pathlib.Path, outdir: pathlib.Path | None, machine: str, o
     signum = None
     try:
         with worker_pool(max(1, jobs)) as pool:
-            futs = {pool.submit(run_one, str(f), str(dsts[f.name]), machine, opts_dict): f
+            futs = {pool.submit(run_one, str(f), str(dsts[f.name]), machine, opts_dict,
+                                None if report_dir is None
+                                else str(report_dir / (f.stem + ".json"))): f
                     for f in files}
             for fut in pool.as_completed(futs):
                 r = fut.result()

@@ -171,7 +171,82 @@ def nomad3() -> MachineProfile:
         })
 
 
-BUILTINS = {"ender3pro": ender3pro, "nomad3": nomad3}
+#: The measured data behind ``voron24`` (read, never copied: the profile holds FRFs derived from it)
+MEASURED = pathlib.Path(__file__).resolve().parents[2].parent / "shared" / "data" / "measured"
+VORON_BELTS = ("voron2.4_klipper-raw-accel_belt-test_20231128_221505_A.csv",
+               "voron2.4_klipper-raw-accel_belt-test_20231128_221505_B.csv")
+
+
+def _names_only(text: str, files) -> str:
+    for f in files:
+        for form in {str(f), str(pathlib.Path(f).resolve())}:
+            text = text.replace(form, pathlib.Path(f).name)
+    return text
+
+
+def voron24(measured_dir=MEASURED) -> MachineProfile:
+    """A Voron 2.4 (CoreXY, Klipper) from a published raw belt test: Klipper's resonance test
+    along belt A (direction (1, 1)) and belt B ((1, −1)), identified as ``identify`` does
+    (H1 with coherence, 4 FRFs per recording, 3 modes). On a CoreXY x = (a + b)/2 and
+    y = (a − b)/2, so a move along X or Y drives both belts and each axis's response is
+    (G_A + G_B)/2: the axes' FRF sets are the means of A's and B's segments, pair by pair. What
+    the two belts' difference does ((G_A − G_B)/2 of the other axis's command) is not in a
+    per-axis FRF; ``diagnose`` names it as cross_coupling, form ``belt`` (twin.extensions)."""
+    # identify's stack on use (this module is loaded by every profile load)
+    from ..identify.axis import identify_axis
+
+    files = [pathlib.Path(measured_dir) / f for f in VORON_BELTS]
+    a, _, warn_a = identify_axis("x", files[:1], 3)
+    b, _, warn_b = identify_axis("y", files[1:], 3)
+    resp = 0.5 * (a.frf.response + b.frf.response)
+    labels = tuple(f"(A{i + 1}+B{i + 1})/2" for i in range(resp.shape[0]))
+    modes = tuple(Mode(0.5 * (ma.freq_hz + mb.freq_hz), 0.5 * (ma.damping + mb.damping),
+                       0.5 * (ma.gain + mb.gain)) for ma, mb in zip(a.modes, b.modes))
+    prov = {"kind": "measured: Klipper raw accelerometer belt test (identify)",
+            "source": "GitHub agravelot/voron2-config, commit f2cff10d, K-ShakeTune_results/belts/ "
+                      "(../shared/data/PROVENANCE.md)",
+            "belt_modes_hz": {"A": [round(m.freq_hz, 2) for m in a.modes],
+                              "B": [round(m.freq_hz, 2) for m in b.modes]},
+            "combination": "corexy: each axis's FRF is (G_A + G_B)/2, segment i of A with segment i of B",
+            # file names only: the generated profile must not depend on where the data sits
+            "warnings": [_names_only(w, files) for w in warn_a + warn_b]}
+    axes = {ax: AxisModel(frf=FRFSet(a.frf.freq_hz, resp, labels), modes=modes, provenance=prov)
+            for ax in ("x", "y")}
+    limits = Limits(vmax_mm_s=300.0, amax_mm_s2=5000.0, jmax_mm_s3=None,
+                    axis_vmax_mm_s={"x": 300.0, "y": 300.0, "z": 15.0, "e": 120.0},
+                    axis_amax_mm_s2={"x": 5000.0, "y": 5000.0, "z": 350.0, "e": 5000.0},
+                    tolerance_mm=0.1, stringency=0.95, max_volumetric_mm3_s=24.0,
+                    filament_diameter_mm=1.75)
+    firmware = Firmware(
+        flavour="klipper", g91_relative_e=False, accel_mm_s2=5000.0, travel_accel_mm_s2=5000.0,
+        max_accel_mm_s2={"x": 5000.0, "y": 5000.0, "z": 350.0, "e": 5000.0},
+        max_feed_mm_s={"x": 300.0, "y": 300.0, "z": 15.0, "e": 120.0},
+        junction_deviation_mm=0.013, square_corner_velocity_mm_s=5.0, minimum_cruise_ratio=0.5,
+        mm_per_arc_segment=1.0, max_lines_per_s=2000.0, retract_mm=0.0, retract_speed_mm_s=35.0,
+        configured_accel_mm_s2=3000.0, configured_max_accel_mm_s2={"x": 3000.0, "y": 3000.0})
+    twin = TwinSettings(n2=10, n3=30, sigma_eps_mm=0.01, coef_variance="ensemble", n_taps=500)
+    return MachineProfile(
+        name="voron24",
+        description="Voron 2.4 CoreXY (Klipper); FRFs identified from a published raw belt test",
+        ts_s=TS_S, limits=limits, firmware=firmware, axes=axes, twin=twin,
+        provenance={
+            "limits": "what a stock Voron 2.4 (LDO 0.9 deg motors, 24 V) commonly runs: 300 mm/s, "
+                      "5000 mm/s^2 X/Y (hardware), Z 15 mm/s at 350 mm/s^2; max_volumetric 24 "
+                      "mm^3/s (a Revo/Dragon-class hotend in PLA); set yours",
+            "firmware": "Klipper, printer.cfg as ../shared/tools/klipper-referee/ runs it: "
+                        "max_accel 3000 (configured_*; the plan's 5000 is set with "
+                        "SET_VELOCITY_LIMIT before the first re-timed move and taken back after "
+                        "the last), square_corner_velocity 5, minimum_cruise_ratio 0.5. "
+                        "max_lines_per_s 2000: Klipper's host-side queue, not a serial line. "
+                        "Input shaping and pressure advance run below our plan (README, Klipper)",
+            "frf": "measured (see axes.*.provenance)",
+            "twin": "n2 10, n3 30, sigma_eps 0.01 mm (as ender3pro)",
+            "priors": PRIORS_NOTE,
+            "generator": "python -m gcode_feedopt.profile.builtin (needs ../shared/data/measured)",
+        })
+
+
+BUILTINS = {"ender3pro": ender3pro, "nomad3": nomad3, "voron24": voron24}
 
 #: Why the shipped built-ins carry no learned prior: the twin learns the plant draw as a latent
 #: variable, so a prior fitted to the same FRF spread would count it twice (docs/twin.md §6).
@@ -206,6 +281,9 @@ def write_builtins(outdir, learn_priors: bool = False) -> list[pathlib.Path]:
     outdir = pathlib.Path(outdir)
     written = []
     for name, make in BUILTINS.items():
+        if name == "voron24" and not MEASURED.is_dir():
+            print(f"voron24: skipped, its measured data is not at {MEASURED}", file=sys.stderr)
+            continue
         prof = make()
         if learn_priors:
             prof = with_learned_priors(prof)

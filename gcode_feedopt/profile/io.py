@@ -151,7 +151,7 @@ def _read_axis(sec: _Section, base_dir: pathlib.Path | None) -> AxisModel:
     for k, m in enumerate(sec.raw("modes", [])):
         ms = _Section(m, f"{sec._key('modes')}[{k}]", sec.origin)
         modes.append(Mode(freq_hz=ms.getfloat("freq_hz", above=0, maxval=1e4),
-                          damping=ms.getfloat("damping", above=0, below=1),
+                          damping=ms.getfloat("damping", above=0, maxval=10.0),  # ζ ≥ 1: real poles
                           gain=ms.getfloat("gain", 1.0)))
         ms.check_unknown()
     effects = []

@@ -14,12 +14,21 @@ way ``diagnose`` fitted it:
 - ``friction``: m·(−sign v_cmd), relaxing with ``relax_s`` once the axis stops, through the
   dynamics (``response``), the force response (``force``) or at the output (``output``);
 - ``cross_coupling``: ``mm_per_mm_s2`` times the other axis's predicted acceleration through
-  this axis's dynamics, or ``coefficient`` times the other axis's predicted motion;
+  this axis's dynamics (form ``acceleration``, a frame force), through them twice (form
+  ``belt``: a corexy whose two belts differ, see below), or ``coefficient`` times the other
+  axis's predicted motion (form ``position``);
 - ``gain``: besides its change of the response (about the first commanded sample, where the
   twin works), the constant (s − 1)·x_0 that a scale about the machine origin adds.
 
 ``periodic_time`` (a fan) keeps no phase from one print to the next: it adds the variance A²/2
 of a sinusoid of random phase to the prediction instead of a mean.
+
+Form ``belt``: on a corexy, x = (A + B)/2 and y = (A − B)/2 for the two belt drives A, B; with
+responses G_A ≠ G_B each axis's FRF is (G_A + G_B)/2 and each axis also moves by
+(G_A − G_B)/2 times the other's command. To first order in the mismatch, G_A − G_B =
+∂G/∂k·Δk, and for a belt mode G = ω²/D(s), ∂G/∂(ω²)·Δω² = (Δω²/ω²)·(s²/ω²)·G² — the other
+axis's acceleration through the axis's dynamics twice. On drawn corexy machines
+(tests/foreign) the once-filtered form left most of this cross-talk in the residual.
 
 Pure functions on arrays; ``mean_offsets(profile, cmd)`` is what the twin's users call.
 """
@@ -53,7 +62,7 @@ PARAMS = {
     "friction": {"magnitude_mm": (-10.0, 10.0), "relax_s": (0.0, 1e6),
                  "form": ("response", "force", "output")},
     "cross_coupling": {"from_axis": ("x", "y"), "mm_per_mm_s2": (-1.0, 1.0),
-                       "coefficient": (-1.0, 1.0), "form": ("acceleration", "position")},
+                       "coefficient": (-1.0, 1.0), "form": ("acceleration", "belt", "position")},
 }
 #: parameters a kind must have (the rest default as in ``DEFAULTS``)
 REQUIRED = {
@@ -117,9 +126,10 @@ def additive_term(kind: str, params: dict, cmd_mm: np.ndarray, ts_s: float, h: n
         if other_pred_mm is None:
             return np.zeros(K)
         po = np.asarray(other_pred_mm, float)
-        if p["form"] == "acceleration":
+        if p["form"] in ("acceleration", "belt"):
             acc = np.gradient(np.gradient(po, ts_s), ts_s)
-            return p["mm_per_mm_s2"] * respond(acc, h)
+            g = respond(acc, h)
+            return p["mm_per_mm_s2"] * (respond(g, h) if p["form"] == "belt" else g)
         return p["coefficient"] * (po - po[0])
     return np.zeros(K)
 

@@ -90,3 +90,25 @@ def test_batch_makes_again_what_other_settings_made(tmp_path):
     assert b"tolerance 0.2," in (out / "butterfly.gcode").read_bytes()[:4096]
     assert "skipped" in run("--tolerance", "0.2")
     assert run("--tolerance", "0.2", "--method", "kinematic").rstrip().endswith("ok")
+
+
+def test_batch_report_dir_one_json_per_processed_file(tmp_path):
+    import json
+
+    src = tmp_path / "jobs"
+    src.mkdir()
+    shutil.copy(REPO / "sample_gcode" / "butterfly.gcode", src / "butterfly.gcode")
+    (src / "corrupt.gcode").write_bytes(b"GCDE\x00\x01binary")
+    out, rep = tmp_path / "out", tmp_path / "reports"
+    # a report folder whose parent is missing: one line, exit 2, nothing made
+    r = CliRunner().invoke(cli, ["batch", str(src), "-o", str(out), "--machine", "ender3pro",
+                                 "--report", str(tmp_path / "no" / "reports")])
+    assert r.exit_code == 2 and "does not exist" in r.output and not out.exists()
+    r = CliRunner().invoke(cli, ["batch", str(src), "-o", str(out), "-j", "1", "--machine",
+                                 "ender3pro", "--method", "kinematic", "--report", str(rep)])
+    assert r.exit_code == 1  # the corrupt file fails alone
+    assert sorted(p.name for p in rep.iterdir()) == ["butterfly.json"]
+    d = json.loads((rep / "butterfly.json").read_text())
+    assert d["method"] == "kinematic" and d["output"] == str(out / "butterfly.gcode")
+    row = next(ln for ln in r.output.splitlines() if ln.startswith("butterfly.gcode"))
+    assert row.rstrip().endswith(("ok", "kept"))

@@ -67,3 +67,19 @@ def test_cura_script_failure_returns_data_unchanged(tmp_path):
     layers = cura_layers((GCODE_DIR / "cura-4.8_ender3_square-tower.gcode").read_text())[:5]
     got = run_script(tmp_path, layers, machine="no-such-printer")
     assert got["result"] == layers
+
+
+@pytest.mark.skipif(not CURA_SCRIPT.exists(), reason="Debian cura not installed (.ci/run installs it)")
+def test_cura_script_time_limit_stops_the_command_and_its_workers(tmp_path):
+    """Issue 18: on its time limit the script stops gcode-feedopt and every worker it started
+    (its own process group: SIGTERM, then SIGKILL) and gives Cura its G-code back unchanged."""
+    import time
+
+    layers = cura_layers((GCODE_DIR / "cura-4.11_ender3_3dbenchy.gcode").read_text())
+    t0 = time.monotonic()
+    got = run_script(tmp_path, layers, method="pidd", timeout_s=3)
+    assert got["result"] == layers
+    assert time.monotonic() - t0 < 60
+    time.sleep(0.5)
+    left = subprocess.run(["pgrep", "-f", "cura-feedopt-"], capture_output=True, text=True).stdout
+    assert not left.strip(), f"processes left: {left}"

@@ -1,0 +1,90 @@
+"""The foreign-machine generator against closed forms: its time simulation agrees with its own
+FRF (steady-state sine), a position axis at rest sits at its command, a delay is a shift, and the
+labels are what the physics did. The twin and diagnosis tests on these machines are in
+test_twin_foreign.py; the generator must be right first."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from .machines import KINDS, R, _fine, _sim_fine, axis_frf, make_machine, respond_xy, write_dataset
+
+TS = 0.002
+
+
+def _sine_gain(ch, f0, delay_steps=0):
+    """Complex steady-state ratio of the simulated response to a sampled sine (the firmware's
+    command is linear between samples: its fundamental is the sine's × sinc²(f·Ts))."""
+    t = np.arange(4000) * TS
+    u = 0.1 * np.sin(2 * np.pi * f0 * t)
+    y = _sim_fine(ch, _fine(u, delay_steps), TS, None)
+    tt = t[-1500:]
+    A = np.column_stack([np.sin(2 * np.pi * f0 * tt), np.cos(2 * np.pi * f0 * tt)])
+    c = np.linalg.lstsq(A, y[-1500:], rcond=None)[0]
+    hold = np.sinc(f0 * TS) ** 2
+    return (c[0] + 1j * c[1]) / 0.1 / hold
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_simulation_agrees_with_the_frf(kind):
+    mach = make_machine(11, kind)
+    for ch in mach.chans.values():
+        for f0 in (7.0, 31.0, 83.0):
+            got = _sine_gain(ch, f0)
+            want = ch.frf([f0])[0]
+            assert abs(got - want) < 2e-3 * max(1.0, abs(want)), (kind, f0, got, want)
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_dc_gain_one_and_rest_at_command(kind):
+    mach = make_machine(12, kind)
+    for ch in mach.chans.values():
+        assert abs(ch.frf([1e-4])[0] - 1) < 1e-6
+    # a move and a long rest: every kind settles on the command
+    x = np.concatenate([np.linspace(10, 60, 200), np.full(800, 60.0)])
+    y = np.concatenate([np.linspace(20, 0, 200), np.full(800, 0.0)])
+    mach.sensor_noise_mm = 0.0
+    mach.sensor_q_mm = 1e-9
+    xs, ys = respond_xy(mach, mach.chans, x, y, TS)
+    assert abs(xs[0] - 10) < 1e-9 and abs(ys[0] - 20) < 1e-9
+    assert abs(xs[-1] - 60) < 1e-4 and abs(ys[-1]) < 1e-4
+
+
+def test_delay_is_a_shift_and_in_the_frf():
+    mach = make_machine(3, "belt_frame")
+    ch = mach.chans["x"]
+    f0, d = 23.0, 10  # fine steps: 1 ms
+    got = _sine_gain(ch, f0, d)
+    want = ch.frf([f0])[0] * np.exp(-2j * np.pi * f0 * d * TS / R)
+    assert abs(got - want) < 2e-3 * abs(want)
+    assert np.allclose(axis_frf(mach.chans, "x", [f0], d * TS / R), want)
+
+
+def test_corexy_axes_cross_talk_only_through_the_mismatch():
+    mach = make_machine(0, "corexy")
+    mach.sensor_noise_mm, mach.sensor_q_mm = 0.0, 1e-9
+    t = np.arange(1500)
+    x = 50 + 20 * np.sin(2 * np.pi * t * TS * 3) * (t > 100)
+    y = np.full(t.size, 30.0)
+    xs, ys = respond_xy(mach, mach.chans, x, y, TS)
+    assert np.ptp(ys) > 1e-4                       # y moves with x's command...
+    same = dict(mach.chans, b=mach.chans["a"])     # ...and not when the belts match
+    xs2, ys2 = respond_xy(mach, same, x, y, TS)
+    assert np.ptp(ys2) < 1e-9
+
+
+def test_dataset_layout_and_labels(tmp_path):
+    mach = make_machine(1, "belt_hotend")
+    labels = write_dataset(mach, tmp_path)
+    assert labels == json.loads((tmp_path / "labels.json").read_text())
+    assert len(list((tmp_path / "frf").glob("x_*.csv"))) == mach.n_meas
+    head = (tmp_path / "logs" / "log_01.csv").read_text().splitlines()[0]
+    assert head == "t,x_cmd,y_cmd,x,y"
+    kinds = [e["effects"][0]["kind"] for e in labels["logs"]]
+    assert kinds == ["none", "none", "none", "delay", "periodic_time", "gain", "resonance_shift"]
+    f = np.loadtxt(tmp_path / "frf" / "x_1.csv", delimiter=",", skiprows=1)
+    start, stop, step = mach.frf_grid
+    assert f[0, 0] == start and f[-1, 0] <= stop and np.allclose(np.diff(f[:, 0]), step)

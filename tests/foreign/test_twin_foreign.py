@@ -1,0 +1,135 @@
+"""The twin and the diagnosis on machines of structures we did not simulate (tests/foreign/
+machines.py), built and judged as a user would: `profile build` from the machine's FRF files,
+then the logs. Each case is one the twin got wrong before the fix it names."""
+
+from __future__ import annotations
+
+import json
+import sys
+import warnings
+
+import numpy as np
+import pytest
+
+from gcode_feedopt.closedloop.diagnose import diagnose_log
+from gcode_feedopt.closedloop.logs import MotionLog, log_warmup
+from gcode_feedopt.profile import load_profile
+from gcode_feedopt.profile.build import build_from_frfs
+from gcode_feedopt.twin.model import axis_twin
+from gcode_feedopt.twin.physics import axis_modal
+
+from .machines import BENCH_A, make_machine, write_dataset
+
+pytestmark = pytest.mark.skipif(not BENCH_A.is_dir(), reason="needs ../shared/data/independent")
+
+
+def _set(tmp_path_factory, seed, effects):
+    out = tmp_path_factory.mktemp(f"foreign{seed}")
+    labels = write_dataset(make_machine(seed), out, effects=effects)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        prof, _ = build_from_frfs(load_profile("ender3pro"),
+                                  {a: sorted((out / "frf").glob(f"{a}_*.csv")) for a in "xy"},
+                                  name=f"foreign-{seed}")
+    return out, labels, prof
+
+
+def _log(out, prof, name):
+    a = np.loadtxt(out / "logs" / name, delimiter=",", skiprows=1)
+    cmd = np.column_stack([a[:, 1:3], np.zeros(len(a))])
+    pos = np.column_stack([a[:, 3:5], np.zeros(len(a))])
+    w0 = log_warmup(cmd[:, :2], prof.ts_s, prof)
+    return MotionLog(ts_s=prof.ts_s, cmd_mm=cmd, pos_mm=pos, source=name, kind="encoder", warmup=w0)
+
+
+def _rms(v):
+    return float(np.sqrt(np.mean(np.square(v))))
+
+
+@pytest.fixture(scope="module")
+def servo4(tmp_path_factory):
+    # PID servo on a lead screw, 0.9 ms transport delay, 8 FRFs from 3 Hz in 2 Hz steps
+    return _set(tmp_path_factory, 4, effects=False)
+
+
+@pytest.fixture(scope="module")
+def servo8(tmp_path_factory):
+    # PID servo, 6 FRFs from 1 Hz in 0.5 Hz steps, 2.8 % noise
+    return _set(tmp_path_factory, 8, effects=False)
+
+
+@pytest.fixture(scope="module")
+def hotend1(tmp_path_factory):
+    # belt + frame + a hotend on a flexible mount sensed at the nozzle: three modes
+    return _set(tmp_path_factory, 1, effects=True)
+
+
+@pytest.mark.parametrize("which", ["servo4", "servo8"])
+def test_prior_prediction_of_a_servo_beats_actual_equals_command(which, request):
+    """Before: seed 4 y erred 1139 µm RMS (two members put a mode below the band), seed 8 y
+    100 µm (the closed loop's real poles forced into ζ ≤ 0.9), against 386 / 377 µm for
+    'actual = command'."""
+    out, _, prof = request.getfixturevalue(which)
+    log = _log(out, prof, "log_01.csv")
+    for i, ax in enumerate("xy"):
+        mean, _ = axis_twin(prof, ax).run(log.cmd_mm[:, i], log.pos_mm[:, i], learn=False)
+        twin = _rms(log.pos_mm[:, i] - mean)
+        none = _rms(log.pos_mm[:, i] - log.cmd_mm[:, i])
+        assert twin < 0.1 * none, (which, ax, twin, none)
+
+
+def test_no_member_mode_below_the_measured_band(servo4):
+    out, _, prof = servo4
+    for ax in "xy":
+        f0 = float(prof.axes[ax].frf.freq_hz[0])
+        for m in axis_modal(prof, ax, warn=False).models:
+            assert m.freq_hz.min() >= f0 * (1 - 1e-9), (ax, m.freq_hz)
+
+
+@pytest.mark.parametrize("which", ["servo4", "servo8", "hotend1"])
+def test_clean_logs_of_a_plant_inside_the_spread_are_none(which, request):
+    out, labels, prof = request.getfixturevalue(which)
+    for e in labels["logs"]:
+        if e["effects"][0]["kind"] != "none":
+            continue
+        d = diagnose_log(_log(out, prof, e["file"].split("/")[-1]), prof)
+        named = [g for g in d.effects if g["kind"] != "none"]
+        assert not named, (which, e["file"], named)
+
+
+def test_effects_on_a_three_mode_machine_named_with_their_parameter(hotend1):
+    out, labels, prof = hotend1
+    key = {"delay": "seconds", "gain": "scale", "periodic_time": "amplitude_mm",
+           "resonance_shift": "frequency_hz"}
+    for e in labels["logs"]:
+        truth = e["effects"][0]
+        if truth["kind"] == "none":
+            continue
+        d = diagnose_log(_log(out, prof, e["file"].split("/")[-1]), prof)
+        g = next((g for g in d.effects if g["kind"] == truth["kind"] and g["axis"] == truth["axis"]), None)
+        assert g is not None, (e["file"], truth, d.effects)
+        tv, gv = truth["params"][key[truth["kind"]]], g["params"][key[truth["kind"]]]
+        if truth["kind"] == "gain":
+            tv, gv = tv - 1, gv - 1
+        assert abs(gv - tv) <= 0.05 * abs(tv), (e["file"], truth, g)
+
+
+def test_profile_build_and_diagnose_cli_on_a_servo(servo4, tmp_path):
+    """The user's path: `profile build` from the servo's files (its fits have real pole pairs,
+    ζ > 1, which the profile schema refused before), then `diagnose` and `predict` with it."""
+    import subprocess
+
+    out, _, _ = servo4
+    prof = tmp_path / "servo.yaml"
+    cmd = [sys.executable, "-m", "gcode_feedopt"]
+    r = subprocess.run(cmd + ["profile", "build", "--frf-x", *map(str, sorted((out / "frf").glob("x_*.csv"))),
+                              "--frf-y", *map(str, sorted((out / "frf").glob("y_*.csv"))), "-o", str(prof)],
+                       capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    r = subprocess.run(cmd + ["diagnose", "-m", str(prof), str(out / "logs" / "log_01.csv"),
+                              "--json", "-"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert all(e["kind"] == "none" for e in json.loads(r.stdout)["effects"]), r.stdout
+    r = subprocess.run(cmd + ["predict", "-m", str(prof), str(out / "logs" / "log_01.csv"),
+                              "-o", str(tmp_path / "p.csv")], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
