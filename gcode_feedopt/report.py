@@ -7,6 +7,15 @@ import json
 from dataclasses import asdict, dataclass, field
 
 
+
+def hms(t: float) -> str:
+    """A duration as the summary and the batch table write it: ``5m57s``, ``1h35m57s``
+    (rounded to the second once, so 359.6 s is 6m00s, never 5m60s)."""
+    t = int(round(t))
+    h, r = divmod(t, 3600)
+    m, s = divmod(r, 60)
+    return f"{h}h{m:02d}m{s:02d}s" if h else f"{m}m{s:02d}s"
+
 @dataclass
 class Report:
     """Figures of one run. Times in seconds, errors in mm."""
@@ -51,12 +60,6 @@ class Report:
 
     def summary(self) -> str:
         """A few lines a person reads at a glance."""
-        def hms(t):
-            t = int(round(t))
-            h, r = divmod(t, 3600)
-            m, s = divmod(r, 60)
-            return f"{h}h{m:02d}m{s:02d}s" if h else f"{m}m{s:02d}s"
-
         lines = [f"gcode-feedopt: {self.input}: {hms(self.input_time_s)} -> {hms(self.output_time_s)} "
                  f"({self.saved_pct:+.1f} % saved; {self.time_source})",
                  f"  method {self.method}, machine {self.machine}, speed {self.speed}"

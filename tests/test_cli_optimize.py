@@ -195,3 +195,31 @@ def test_progress_on_a_terminal_only_and_output_unchanged(tmp_path):
     assert b"planning" in on_tty and b"reading" in on_tty
     assert b"planning" not in on_pipe and b"\r" not in on_pipe
     assert a.read_bytes() == b.read_bytes()
+
+
+def test_progress_ticker_never_hands_a_forked_worker_a_held_lock(monkeypatch):
+    """The planner forks workers while the progress line ticks: each fork waits for the line to
+    be written (the lock is taken before the fork), the parent's ticker goes on, and the child
+    has a free lock and no ticker."""
+    import io
+    import os
+    import sys
+
+    from gcode_feedopt.cli.options import Progress
+
+    monkeypatch.setattr(sys, "stderr", io.StringIO())
+    p = Progress("x")
+    try:
+        p("planning")
+        pid = os.fork()
+        if pid == 0:  # the child: exit 0 only when the lock is free and the ticker stopped
+            ok = p._lock.acquire(timeout=2.0) and p._stop.is_set()
+            os._exit(0 if ok else 1)
+        _, status = os.waitpid(pid, 0)
+        assert os.waitstatus_to_exitcode(status) == 0
+        assert p._lock.acquire(timeout=2.0)  # the parent's lock is free again
+        p._lock.release()
+        assert not p._stop.is_set() and p._thread.is_alive()
+    finally:
+        p.done()
+    assert "planning" in sys.stderr.getvalue()

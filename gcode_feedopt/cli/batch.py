@@ -8,7 +8,7 @@ import sys
 
 import click
 
-from ..hosts.batch import find_jobs, run_batch, table
+from ..hosts.batch import find_jobs, notes_text, run_batch, table
 from ..pipeline import METHODS
 from ..plan.speed import SPEEDS
 from ..procs import signal_name
@@ -71,6 +71,9 @@ def batch(folder, outdir, jobs, machine, method, tolerance, feature_tolerance, s
     if tty:
         click.echo("", err=True)
     click.echo(table(results))
+    notes = notes_text(results)
+    if notes:
+        click.echo(notes)
     failed = [r for r in results if r.status == "failed"]
     if signum is not None:
         stopped = sum(r.status == "interrupted" for r in results)

@@ -3,13 +3,15 @@
 
 from __future__ import annotations
 
+import sys
+
 import click
 
 from ..errors import LogError
 from ..inputs import check_input
 from ..profile import load_profile
 from ..profile.io import check_profile_output, save_profile
-from .options import profile_files
+from .options import Progress, profile_files
 
 
 @click.command("learn")
@@ -33,17 +35,42 @@ def learn(logs, machine, out_path, skip_bad):
     for path in logs:
         check_input(path)
     check_profile_output(out_path, "-o", [*logs, *profile_files(machine)])
+    # a whole-print log takes a minute: one self-overwriting line on a terminal, nothing else
+    progress = Progress("learn") if sys.stderr.isatty() else None
+    try:
+        profile, n_ok = _learn_each(logs, profile, skip_bad, progress, load_log, learn_logs)
+    finally:
+        if progress is not None:
+            progress.done()
+    if n_ok == 0:
+        raise LogError("no log was learned from; nothing written")
+    save_profile(profile, out_path)
+    click.echo(f"wrote {out_path} ({n_ok} log(s))")
+
+
+def _learn_each(logs, profile, skip_bad, progress, load_log, learn_logs):
+    """Learn from each log in turn; the updated profile and how many logs were learned from."""
+    def say(stage):
+        if progress is not None:
+            progress(stage)
+
     n_ok = 0
-    for path in logs:
+    for i, path in enumerate(logs, 1):
         try:
+            say(f"[{i}/{len(logs)}] reading {path}")
             log = load_log(path, profile)
+            say(f"[{i}/{len(logs)}] learning from {path}")
             profile, records = learn_logs(profile, [log])
         except LogError as exc:
+            if progress is not None:
+                progress.clear()
             if not skip_bad:
                 raise
             click.echo(f"gcode-feedopt: skipped: {exc}", err=True)
             continue
         n_ok += 1
+        if progress is not None:
+            progress.clear()
         for r in records:
             pr = r["prediction_rms_mm"]
             warm = (f", after a {r['warmup_samples']}-sample warm-up"
@@ -53,7 +80,4 @@ def learn(logs, machine, out_path, skip_bad):
                        f"{', bounded' if r['step_clipped'] else ''}{warm}); what the twin "
                        f"cannot predict: {r['noise_level_mm'] * 1e3:.1f} µm at rest + "
                        f"{r['noise_per_speed_s'] * 1e3:.2f} ms x speed")
-    if n_ok == 0:
-        raise LogError("no log was learned from; nothing written")
-    save_profile(profile, out_path)
-    click.echo(f"wrote {out_path} ({n_ok} log(s))")
+    return profile, n_ok

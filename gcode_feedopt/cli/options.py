@@ -119,8 +119,21 @@ class Progress:
         self.width = 0
         self._lock = threading.Lock()
         self._stop = threading.Event()
+        # planning forks worker processes while the ticker runs: a fork in the middle of its
+        # write would hand the child a stderr whose lock no thread will ever release (a worker
+        # writing a warning would hang). Each fork waits for the line to be written.
+        import os
+        if hasattr(os, "register_at_fork"):
+            os.register_at_fork(before=self._lock.acquire,
+                                after_in_parent=self._lock.release,
+                                after_in_child=self._forked)
         self._thread = threading.Thread(target=self._tick, daemon=True)
         self._thread.start()
+
+    def _forked(self) -> None:
+        """In a forked child: no ticker there; the lock taken before the fork is free again."""
+        self._stop.set()
+        self._lock.release()
 
     def _tick(self) -> None:
         while not self._stop.wait(1.0):
@@ -137,6 +150,14 @@ class Progress:
     def __call__(self, stage: str) -> None:
         self.stage = stage
         self._show()
+
+    def clear(self) -> None:
+        """Erase the line until the next stage (before other text goes to the terminal)."""
+        with self._lock:
+            self.stage = ""
+            if self.width:
+                click.echo("\r" + " " * self.width + "\r", err=True, nl=False)
+                self.width = 0
 
     def done(self) -> None:
         with self._lock:

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import os
 import pathlib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from ..errors import FeedOptError
 from ..gcode.reader import IDENT_PREFIX
@@ -15,6 +15,7 @@ from ..outputs import make_output_folder, write_text
 from ..pipeline import Options, optimize_file, run_settings
 from ..procs import acknowledge, worker_pool
 from ..profile import load_profile
+from ..report import hms
 
 SUFFIXES = (".gcode", ".gco", ".g")
 
@@ -26,6 +27,8 @@ class JobResult:
     input_time_s: float | None = None
     output_time_s: float | None = None
     message: str = ""
+    #: the notes the main command's summary would show for this file (report.notes)
+    notes: list = field(default_factory=list)
 
     @property
     def saved_pct(self) -> float | None:
@@ -76,11 +79,14 @@ def run_one(src: str, dst: str, machine: str, opts_dict: dict,
         if report:
             write_text(report, rep.to_json() + "\n", "--report")
         kept = rep.extra.get("kept_input")
+        # the table's status says a file was kept; every other note as the summary has it
+        notes = [n for n in rep.notes if not n.startswith("kept the input")]
         if kept:
             slower = 100.0 * (kept["plan_output_time_s"] / rep.input_time_s - 1.0)
             return JobResult(src_p.name, "kept", rep.input_time_s, rep.output_time_s,
-                             message=f"our plan {slower:.1f} % slower; --allow-slower writes it")
-        return JobResult(src_p.name, "ok", rep.input_time_s, rep.output_time_s)
+                             message=f"our plan {slower:.1f} % slower; --allow-slower writes it",
+                             notes=notes)
+        return JobResult(src_p.name, "ok", rep.input_time_s, rep.output_time_s, notes=notes)
     except FeedOptError as exc:
         return JobResult(src_p.name, "failed", message=str(exc))
     except Exception as exc:  # a bug must not stop the other jobs; report it as such
@@ -159,7 +165,7 @@ def table(results: list[JobResult]) -> str:
     rows = [("file", "before", "after", "saved", "status")]
     for r in results:
         def t(v):
-            return "-" if v is None else f"{int(v // 60)}m{int(round(v % 60)):02d}s"
+            return "-" if v is None else hms(v)
         sp = r.saved_pct
         rows.append((r.file, t(r.input_time_s), t(r.output_time_s),
                      "-" if sp is None else f"{sp:+.1f} %",
@@ -167,3 +173,18 @@ def table(results: list[JobResult]) -> str:
     w = [max(len(row[i]) for row in rows) for i in range(4)]
     return "\n".join(f"{a:<{w[0]}}  {b:>{w[1]}}  {c:>{w[2]}}  {d:>{w[3]}}  {e}"
                      for a, b, c, d, e in rows)
+
+
+def notes_text(results: list[JobResult]) -> str:
+    """The main command's notes for each file, below the table: ``note: a.gcode: ...``; a note
+    every file shares (e.g. --mode sampled above the line budget) once, for ``all N files``."""
+    by_note: dict[str, list[str]] = {}
+    for r in results:
+        for n in r.notes:
+            by_note.setdefault(n, []).append(r.file)
+    out = []
+    for n, files in by_note.items():
+        who = (f"all {len(files)} files" if len(files) > 1 and len(files) == len(results)
+               else ", ".join(files))
+        out.append(f"note: {who}: {n}")
+    return "\n".join(out)

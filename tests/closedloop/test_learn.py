@@ -77,3 +77,60 @@ def test_learn_cli_skips_bad(tmp_path):
     assert load_profile(out).twin.priors["x"].learned_from[-1]["log"] == str(good)
     r = CliRunner().invoke(cli, ["learn", "-m", "ender3pro", str(bad), "-o", str(out)])
     assert r.exit_code != 0 and "no motion" in r.output
+
+
+def _learn_on(tmp_path, args, tty: bool):
+    """Run the real `learn` in a child, stderr on a pseudo-terminal or a pipe: (rc, out, err)."""
+    import os
+    import subprocess
+    import sys
+
+    from ..conftest import REPO
+
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    cmd = [sys.executable, "-m", "gcode_feedopt", "learn", *map(str, args)]
+    if not tty:
+        r = subprocess.run(cmd, capture_output=True, env=env, timeout=300)
+        return r.returncode, r.stdout.decode(), r.stderr.decode()
+    master, slave = os.openpty()
+    p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=slave, env=env)
+    os.close(slave)
+    import threading
+    out = []
+    t = threading.Thread(target=lambda: out.append(p.stdout.read()))
+    t.start()
+    buf = b""
+    while True:
+        try:
+            chunk = os.read(master, 4096)
+        except OSError:
+            break
+        if not chunk:
+            break
+        buf += chunk
+    rc = p.wait(timeout=300)
+    t.join()
+    os.close(master)
+    return rc, out[0].decode(), buf.decode(errors="replace")
+
+
+def test_learn_shows_progress_on_a_terminal_only(tmp_path):
+    """Issue 18: `learn` on a whole-print log is a minute of silence; on a terminal a line names
+    the log and the stage, cleared before the results; a pipe gets nothing; the learned profile
+    and the stdout lines are the same either way."""
+    log = tmp_path / "a.csv"
+    make_log(log, effects=[fx.SensorNoise("x", std_mm=0.001)])
+    got = {}
+    for tty in (True, False):
+        (tmp_path / str(tty)).mkdir()
+        out = tmp_path / str(tty) / "u.yaml"
+        rc, so, se = _learn_on(tmp_path, ["-m", "ender3pro", log, "-o", out], tty)
+        assert rc == 0, se
+        if tty:
+            assert "learn: [1/1] reading" in se and "learn: [1/1] learning from" in se
+            assert se.rstrip(" ").endswith("\r")  # the line is cleared, nothing left on it
+        else:
+            assert "learn:" not in se and "\r" not in se
+        got[tty] = (so.replace(str(out), "OUT"),  # the same profile, but for when it was learned
+                    [ln for ln in out.read_text().splitlines() if "date: " not in ln])
+    assert got[True] == got[False]

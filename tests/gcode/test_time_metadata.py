@@ -56,3 +56,10 @@ def test_time_in_the_file_is_the_summary_time(name, lines, method, tmp_path):
     if est:
         assert est[0].strip() == format_duration(t_out)
     assert m or est
+    # and the summary on stderr says the same, at the same rounding: `.. -> 6m00s (..`
+    from gcode_feedopt.report import hms
+    said = re.search(r"-> (\S+) \(", r.stderr)
+    assert said, r.stderr
+    assert said.group(1) == hms(t_out)
+    if m:
+        assert said.group(1) == hms(int(m.group(1)))

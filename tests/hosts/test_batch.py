@@ -48,7 +48,11 @@ def test_ctrl_c_leaves_no_half_written_file(tmp_path):
                          start_new_session=True)
     time.sleep(4.0)
     os.killpg(p.pid, signal.SIGINT)
-    p.wait(timeout=60)
+    out, err = p.communicate(timeout=60)
+    # issue 18: the table says what was done even on Ctrl-C; exit 128 + SIGINT
+    assert p.returncode == 130, err
+    assert out.split()[:5] == [b"file", b"before", b"after", b"saved", b"status"], out
+    assert b"a.gcode" in out and b"b.gcode" in out and b"stopped by" in err
     names = sorted(x.name for x in src.iterdir())
     assert names == ["a.gcode", "b.gcode"]  # no temp left behind
     for x in src.iterdir():  # each file is either untouched or completely processed
@@ -112,3 +116,33 @@ def test_batch_report_dir_one_json_per_processed_file(tmp_path):
     assert d["method"] == "kinematic" and d["output"] == str(out / "butterfly.gcode")
     row = next(ln for ln in r.output.splitlines() if ln.startswith("butterfly.gcode"))
     assert row.rstrip().endswith(("ok", "kept"))
+
+
+def test_batch_table_writes_times_as_the_summary_does():
+    """The table's times are the summary's (report.hms): rounded once, hours shown; before,
+    359.6 s was '5m60s' and 3725 s '62m05s'."""
+    from gcode_feedopt.hosts.batch import JobResult, table
+    from gcode_feedopt.report import hms
+
+    t = table([JobResult("a.gcode", "ok", 3725.0, 359.6)])
+    row = t.splitlines()[1].split()
+    assert row[1:3] == ["1h02m05s", "6m00s"] == [hms(3725.0), hms(359.6)]
+
+
+def test_batch_shows_the_main_commands_notes(tmp_path):
+    """issue 18: batch shows the notes the summary would (here --mode sampled above ender3pro's
+    line budget, once for all files), and what a single file has alone, named."""
+    src = tmp_path / "jobs"
+    src.mkdir()
+    data = (REPO / "sample_gcode" / "butterfly.gcode").read_bytes()
+    (src / "a.gcode").write_bytes(data)
+    (src / "b.gcode").write_bytes(data.rstrip(b"\r\n"))  # no line end on its last line
+    r = CliRunner().invoke(cli, ["batch", str(src), "-o", str(tmp_path / "out"), "-j", "1",
+                                 "--machine", "ender3pro", "--method", "kinematic",
+                                 "--mode", "sampled", "--allow-slower"])
+    assert r.exit_code == 0, r.output
+    notes = [ln for ln in r.output.splitlines() if ln.startswith("note: ")]
+    assert any(n.startswith("note: all 2 files: --mode sampled") and "max_lines_per_s" in n
+               for n in notes), r.output
+    assert any(n.startswith("note: b.gcode: the last line") for n in notes), r.output
+    assert not any(n.startswith("note: a.gcode") for n in notes), r.output
