@@ -51,6 +51,41 @@ class Options:
     dry_run: bool = False
     trajectory: str | None = None
     plot: str | None = None
+    #: E_max per feature (gcode.features), over the profile's limits.feature_tolerance_mm;
+    #: None: the profile's; an empty dict: one tolerance (per feature off)
+    feature_tolerance: dict | None = None
+
+
+def feature_tolerance_map(profile, opts: Options) -> dict:
+    """{feature: mm} in force: the profile's, updated by --feature-tolerance ({} turns off)."""
+    if opts.feature_tolerance is not None and not opts.feature_tolerance:
+        return {}
+    return {**profile.limits.feature_tolerance_mm, **(opts.feature_tolerance or {})}
+
+
+def tolerance_for(path, program, profile, opts: Options):
+    """The tolerance the planner gets: the scalar E_max when no feature has its own (the
+    single-tolerance path, unchanged), else (N,) one per segment from each move's feature.
+    Returns (tolerance, per-segment features, notes)."""
+    from .gcode.features import present, segment_features, segment_tolerance
+    scalar = opts.tolerance_mm or profile.limits.tolerance_mm
+    table = feature_tolerance_map(profile, opts)
+    feats = segment_features(path, program)
+    if not table:
+        return scalar, feats, []
+    have = present(feats)
+    notes = []
+    if not (have - {"travel", ""}):
+        notes.append(f"no slicer feature tags (;TYPE:) in the file: one tolerance {scalar:g} mm "
+                     f"for every move; --feature-tolerance not applied")
+        return scalar, feats, notes
+    missing = sorted(set(table) - have)
+    if missing:
+        notes.append(f"feature tolerance for {', '.join(missing)}: the file has no such "
+                     f"moves (it has {', '.join(sorted(have - {''}))})")
+    if "" in have:
+        notes.append(f"{int(np.sum(feats == ''))} untagged segments keep {scalar:g} mm")
+    return segment_tolerance(feats, table, scalar), feats, notes
 
 
 def read_for(path, profile):
@@ -81,9 +116,10 @@ def path_for(program, profile, fw_limits=None):
                       e_scale=fw_limits.extrude_factor)
 
 
-def plan(path, profile, opts: Options, fw_limits=None):
+def plan(path, profile, opts: Options, fw_limits=None, tolerance=None):
     """The Schedule of the chosen method, under the speed policy (plan.speed): the planners
-    see the path with each move's ceiling as its feed."""
+    see the path with each move's ceiling as its feed. ``tolerance``: scalar or (N,) per
+    segment (:func:`tolerance_for`); None: the scalar E_max."""
     path = planning_path(path, opts.speed, profile, opts.vmax_mm_s)
     vmax = plan_vmax(profile, opts.speed, opts.vmax_mm_s)
     if opts.method == "kinematic":
@@ -95,8 +131,10 @@ def plan(path, profile, opts: Options, fw_limits=None):
     except ImportError:
         raise FeedOptError(f"method '{opts.method}' is not available in this build; use "
                            "--method kinematic") from None
+    if tolerance is None:
+        tolerance = opts.tolerance_mm or profile.limits.tolerance_mm
     return plan_schedule(opts.method, path, profile,
-                         tolerance_mm=opts.tolerance_mm or profile.limits.tolerance_mm,
+                         tolerance_mm=tolerance,
                          stringency=opts.stringency or profile.limits.stringency,
                          vmax_mm_s=vmax, amax_mm_s2=opts.amax_mm_s2,
                          fw_limits=fw_limits, use_slicer_feed=True)
@@ -174,7 +212,8 @@ def run_settings(profile, opts: Options) -> str:
     return (f"machine {profile.name}@{digest}, method {opts.method}, speed {opts.speed}, "
             f"tolerance {g(opts.tolerance_mm or profile.limits.tolerance_mm)}, "
             f"stringency {g(opts.stringency or profile.limits.stringency)}, "
-            f"vmax {g(opts.vmax_mm_s)}, amax {g(opts.amax_mm_s2)}, mode {opts.mode}")
+            f"vmax {g(opts.vmax_mm_s)}, amax {g(opts.amax_mm_s2)}, mode {opts.mode}"
+            + "".join(f", {k} {g(v)}" for k, v in feature_tolerance_map(profile, opts).items()))
 
 
 def check_run_outputs(in_path, out_path, opts: Options, extra: dict | None = None,
@@ -223,7 +262,8 @@ def optimize_file(in_path, out_path, profile, opts: Options, progress=None) -> R
     check_plan_size(path, profile, opts.vmax_mm_s, opts.amax_mm_s2, opts.speed == "slicer",
                     fw_limits, where=str(in_path))
     say(f"planning {path.n_segments:,} moves ({opts.method})")
-    sched = plan(path, profile, opts, fw_limits)
+    tol, seg_feats, tol_notes = tolerance_for(path, program, profile, opts)
+    sched = plan(path, profile, opts, fw_limits, tol)
     t_in = input_time_s(path, profile, opts, fw_limits)
     wall["plan"] = time.perf_counter() - t0
     # write, verify and time: a few hundred thousand short-lived objects each and no reference
@@ -351,4 +391,44 @@ def optimize_file(in_path, out_path, profile, opts: Options, progress=None) -> R
     elif fw_out > fw_in:
         rep.notes.append("the firmware runs the original faster than our output: the slicer's "
                          "feeds exceed the profile's limits somewhere (see --vmax)")
+    feats_rep = feature_breakdown(path, sched, seg_feats, tol, profile.ts_s)
+    if feats_rep:
+        rep.extra["features"] = feats_rep
+        rep.extra["feature_tolerance_mm"] = {k: (None if v == float("inf") else v) for k, v in
+                                             feature_tolerance_map(profile, opts).items()}
+    rep.notes.extend(tol_notes)
     return rep
+
+
+def feature_breakdown(path, sched, seg_feats, tolerance, ts_s: float) -> dict:
+    """{feature: plan time s, predicted worst / 95th percentile contour error mm, tolerance}
+    of a planned (non-kinematic) schedule on a file with feature tags; {} otherwise."""
+    bound = sched.info.get("predicted_bound_mm")
+    if bound is None or not (set(np.unique(seg_feats.astype(str))) - {"", "travel"}):
+        return {}
+    s = np.asarray(sched.s_mm)
+    bound = np.asarray(bound)
+    n = min(s.size, bound.size)
+    seg = path.segment_at(s[:n])
+    moving = np.diff(s[:n], prepend=s[0]) > 0
+    f_k = seg_feats[seg]
+    tol_k = (np.full(n, float(tolerance)) if np.ndim(tolerance) == 0
+             else np.asarray(tolerance)[seg])
+    out = {}
+    for f in sorted(set(f_k[moving].astype(str)), key=_feature_order):
+        m = (f_k == f) & moving
+        on = m & (bound[:n] > 0)
+        t = float(np.isfinite(tol_k[m]).any() and np.max(tol_k[m][np.isfinite(tol_k[m])]))
+        out[f or "untagged"] = {
+            "plan_time_s": round(float(np.sum(m)) * ts_s, 3),
+            "predicted_max_contour_error_mm":
+                round(float(np.max(bound[:n][on])), 4) if on.any() else 0.0,
+            "predicted_p95_contour_error_mm":
+                round(float(np.quantile(bound[:n][on], 0.95)), 4) if on.any() else 0.0,
+            "tolerance_mm": t if t else None}
+    return out
+
+
+def _feature_order(f: str) -> int:
+    from .gcode.features import FEATURES
+    return FEATURES.index(f) if f in FEATURES else len(FEATURES)

@@ -70,7 +70,9 @@ class Report:
         if self.predicted_max_contour_error_mm is not None:
             lines.append(f"  predicted contour error: worst {self.predicted_max_contour_error_mm:.3f} mm, "
                          f"95th percentile {self.predicted_p95_contour_error_mm:.3f} mm "
-                         f"(tolerance {self.tolerance_mm:g} mm at {self.stringency:.0%})")
+                         + (f"(tolerance per feature, {self.tolerance_mm:g} mm elsewhere, at "
+                            f"{self.stringency:.0%})" if (self.extra or {}).get("feature_tolerance_mm")
+                            else f"(tolerance {self.tolerance_mm:g} mm at {self.stringency:.0%})"))
         else:
             lines.append(f"  predicted contour error: n/a ({self.method} plans kinematic limits only; "
                          f"tolerance {self.tolerance_mm:g} mm not checked)")
@@ -80,6 +82,13 @@ class Report:
                          f"{self.plan_time_s:.2f} s; contour error worst {ex['max_contour_error_mm']:.3f} mm, "
                          f"95th percentile {ex['p95_contour_error_mm']:.3f} mm, "
                          f"{ex['within_fraction']:.1%} within tolerance")
+        feats = (self.extra or {}).get("features")
+        if feats:
+            lines.append("  per feature (plan s / worst / p95 mm): " + "; ".join(
+                f"{k} {v['plan_time_s']:.0f} s / {v['predicted_max_contour_error_mm']:.3f} / "
+                f"{v['predicted_p95_contour_error_mm']:.3f}"
+                + (f" (tol {v['tolerance_mm']:g})" if v.get("tolerance_mm") else "")
+                for k, v in feats.items() if k != "travel"))
         for n in self.notes:
             lines.append(f"  note: {n}")
         return "\n".join(lines)

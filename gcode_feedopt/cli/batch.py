@@ -13,7 +13,8 @@ from ..pipeline import METHODS
 from ..plan.speed import SPEEDS
 from ..procs import signal_name
 from ..profile import load_profile
-from .options import AMAX, STRINGENCY, TOLERANCE, VMAX, speed_policy
+from ..gcode.features import parse_feature_tolerance
+from .options import AMAX, FEATURE_TOLERANCE_HELP, STRINGENCY, TOLERANCE, VMAX, speed_policy
 
 
 @click.command("batch")
@@ -27,6 +28,7 @@ from .options import AMAX, STRINGENCY, TOLERANCE, VMAX, speed_policy
               help="As for optimize (pidd: the digital twin keeps the tolerance).")
 @click.option("--tolerance", type=TOLERANCE, metavar="MM",
               help="Contour-error tolerance E_max, mm (default: the profile's).")
+@click.option("--feature-tolerance", metavar="F=MM,...", help=FEATURE_TOLERANCE_HELP)
 @click.option("--stringency", type=STRINGENCY, metavar="P",
               help="Fraction of samples that must be within tolerance (default: the profile's).")
 @click.option("--vmax", type=VMAX, metavar="MM_S", help="Override the feed limit, mm/s.")
@@ -44,14 +46,17 @@ from .options import AMAX, STRINGENCY, TOLERANCE, VMAX, speed_policy
 @click.option("--report", "report_dir", type=click.Path(file_okay=False, path_type=pathlib.Path),
               metavar="DIR", help="Write each file's JSON report (as optimize --report) to "
                                   "DIR/<name>.json; DIR is created if its parent exists.")
-def batch(folder, outdir, jobs, machine, method, tolerance, stringency, vmax, amax, mode,
-          speed, use_slicer_feed, allow_slower, force, report_dir):
+def batch(folder, outdir, jobs, machine, method, tolerance, feature_tolerance, stringency, vmax,
+          amax, mode, speed, use_slicer_feed, allow_slower, force, report_dir):
     """Optimize every G-code file in FOLDER; print a summary table; exit 1 if any failed."""
     load_profile(machine)  # a bad machine fails once, here, not once per file
     opts = {"method": method, "tolerance_mm": tolerance, "stringency": stringency,
             "vmax_mm_s": vmax, "amax_mm_s2": amax, "mode": mode,
             "speed": speed_policy(speed, use_slicer_feed), "allow_slower": allow_slower,
             "force": force}
+    ft = parse_feature_tolerance(feature_tolerance)
+    if ft is not None:  # only when given: batch's settings record stays as it was
+        opts["feature_tolerance"] = ft
     total = len(find_jobs(folder))
     done = [0]
     tty = sys.stderr.isatty()

@@ -8,12 +8,14 @@ import sys
 import click
 
 from ..errors import FeedOptError
+from ..gcode.features import parse_feature_tolerance
 from ..hosts import prusaslicer
 from ..outputs import write_text
 from ..pipeline import METHODS, Options, check_run_outputs, optimize_file
 from ..profile import load_profile
 from ..plan.speed import SPEEDS
-from .options import AMAX, STRINGENCY, TOLERANCE, VMAX, Progress, profile_files, speed_policy
+from .options import (AMAX, FEATURE_TOLERANCE_HELP, STRINGENCY, TOLERANCE, VMAX, Progress,
+                      profile_files, speed_policy)
 
 
 @click.command("optimize")
@@ -29,6 +31,7 @@ from .options import AMAX, STRINGENCY, TOLERANCE, VMAX, Progress, profile_files,
                    "the profile's nominal machine holds the tolerance.")
 @click.option("--tolerance", type=TOLERANCE, metavar="MM",
               help="Contour-error tolerance E_max, mm (default: the profile's).")
+@click.option("--feature-tolerance", metavar="F=MM,...", help=FEATURE_TOLERANCE_HELP)
 @click.option("--stringency", type=STRINGENCY, metavar="P",
               help="Fraction of samples that must be within tolerance (default: the profile's).")
 @click.option("--vmax", type=VMAX, metavar="MM_S",
@@ -56,15 +59,16 @@ from .options import AMAX, STRINGENCY, TOLERANCE, VMAX, Progress, profile_files,
 @click.option("--dry-run", is_flag=True, help="Plan and report, write nothing.")
 @click.option("--force", is_flag=True, help="Process a file that was processed before.")
 @click.option("--quiet", "-q", is_flag=True, help="No summary on stderr.")
-def optimize(gcode, output, machine, method, tolerance, stringency, vmax, amax, mode,
-             speed, use_slicer_feed, allow_slower, trajectory, report_path, plot_path, dry_run,
-             force, quiet):
+def optimize(gcode, output, machine, method, tolerance, feature_tolerance, stringency, vmax,
+             amax, mode, speed, use_slicer_feed, allow_slower, trajectory, report_path,
+             plot_path, dry_run, force, quiet):
     """Re-time GCODE for MACHINE and write it (in place without -o)."""
     in_slicer = prusaslicer.running_in_slicer()
     try:
         _run(gcode, output, machine, method, tolerance, stringency, vmax, amax, mode,
              speed_policy(speed, use_slicer_feed), allow_slower, trajectory, report_path,
-             plot_path, dry_run, force, quiet, in_slicer)
+             plot_path, dry_run, force, quiet, in_slicer,
+             parse_feature_tolerance(feature_tolerance))
     except FeedOptError as exc:
         if in_slicer:  # stderr is lost on Windows: leave the reason beside the G-code
             log = prusaslicer.write_failure_log(gcode, str(exc))
@@ -75,10 +79,11 @@ def optimize(gcode, output, machine, method, tolerance, stringency, vmax, amax, 
 
 def _run(gcode, output, machine, method, tolerance, stringency, vmax, amax, mode,
          speed, allow_slower, trajectory, report_path, plot_path, dry_run, force, quiet,
-         in_slicer):
+         in_slicer, feature_tolerance=None):
     opts = Options(method=method, tolerance_mm=tolerance, stringency=stringency, vmax_mm_s=vmax,
                    amax_mm_s2=amax, mode=mode, speed=speed, allow_slower=allow_slower, force=force,
-                   dry_run=dry_run, trajectory=trajectory, plot=plot_path)
+                   dry_run=dry_run, trajectory=trajectory, plot=plot_path,
+                   feature_tolerance=feature_tolerance)
     profile = load_profile(machine)
     # every output checked before anything is read, planned or written
     targets = check_run_outputs(gcode, output, opts, {"--report": report_path},

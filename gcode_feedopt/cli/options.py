@@ -93,6 +93,15 @@ def speed_policy(speed: str, use_slicer_feed: bool) -> str:
     return "slicer" if use_slicer_feed else speed
 
 
+#: --feature-tolerance on optimize and batch (parsed in the command: a bad value is a
+#: one-line error, exit 2)
+FEATURE_TOLERANCE_HELP = (
+    "E_max per slicer feature, e.g. outer_wall=0.05,infill=0.3 ('defaults': outer_wall 0.05, "
+    "inner_wall/skin/bridge 0.1, infill/support/skirt 0.3; 'off': one tolerance). Features: "
+    "outer_wall inner_wall skin infill bridge support skirt travel other; others keep "
+    "--tolerance; travel has none. Default: the profile's limits.feature_tolerance_mm.")
+
+
 class Progress:
     """One self-overwriting line on stderr naming the stage and the time so far, refreshed
     every second (the CLI creates one only when stderr is a terminal and not --quiet: print

@@ -31,6 +31,7 @@ from pygcode.exceptions import GCodeWordStrError
 from pygcode.words import text2words
 
 from ..errors import GCodeError
+from .features import canonical, tag_of
 
 #: Move kinds.
 EXTRUDE, TRAVEL, RETRACT, UNRETRACT, ZHOP, E_ONLY = "extrude", "travel", "retract", "unretract", "zhop", "e-only"
@@ -95,6 +96,9 @@ class Move:
     fixed: bool
     #: the words as written (letter -> text of the value), for exact reproduction.
     words: dict = field(default_factory=dict, compare=False, repr=False)
+    #: canonical feature (gcode.features.FEATURES) from the slicer's last ``;TYPE:`` tag;
+    #: ``travel`` for a move that does not extrude; "" for an untagged extruding move.
+    feature: str = ""
 
     @property
     def de_mm(self) -> float:
@@ -365,11 +369,16 @@ def _read_program(data: bytes, name: str, *, flavour: str, g91_relative_e: bool,
             return st.e_mode_explicit
         return st.xyz_rel
 
+    tag = ""
     for i, raw in enumerate(lines):
         if raw.startswith(IDENT_PREFIX):
             processed = i
             continue
         text = _decode(raw)
+        if text[:1] == ";":
+            t = tag_of(text)
+            if t is not None:
+                tag = t
         fm = _FAST_MOTION.match(text) if fast else None
         if fm is not None:
             # the common `G0/G1 X.. Y.. E.. F..` line: the same words pygcode would give
@@ -523,7 +532,8 @@ def _read_program(data: bytes, name: str, *, flavour: str, g91_relative_e: bool,
             st.layer = 0
         moves.append(_new_move(
             i, f"G{motion}", start, tuple(target), e0, e1, feed, arc, kind, max(st.layer, 0),
-            erel, st.xyz_rel, tuple(st.off), numbered, dict(params)))
+            erel, st.xyz_rel, tuple(st.off), numbered, dict(params),
+            "travel" if kind != EXTRUDE else canonical(tag)))
         st.pos = target
         st.e = e1
     if not moves:

@@ -203,6 +203,10 @@ def plan_offline(path, profile, method: str, *, tolerance_mm: float, stringency:
                             axis_amax_mm_s2=axis_a, firmware=profile.firmware,
                             fw_limits=fw_limits, use_slicer_feed=use_slicer_feed)
     z = float(norm.ppf(stringency))
+    seg_tol = None
+    if np.ndim(tolerance_mm):  # per feature: (N,) E_max of each segment
+        seg_tol = np.asarray(tolerance_mm, float)
+        tolerance_mm = scalar_tolerance(seg_tol)
     kw = dict(z=z, tol_mm=tolerance_mm, overshoot_reach_mm=max(1.0, OVERSHOOT_LAG_S * vmax))
     rules = ContourRules(path)
     if method == "oracle":
@@ -211,6 +215,8 @@ def plan_offline(path, profile, method: str, *, tolerance_mm: float, stringency:
         predictor = make_twin_predictor(profile, method, learn=False)
         check_noise_floor(predictor, profile, tolerance_mm, stringency)
         evaluator = TwinEvaluator(predictor, rules, ts_s=profile.ts_s, **kw)
+    if seg_tol is not None:
+        evaluator.set_feature_tolerance(path, seg_tol)
     res = plan_slowdown(path, limits, evaluator, ts_s=profile.ts_s, settings=settings)
     on = res.bound_mm > 0
     info = dict(res.info)
@@ -224,6 +230,13 @@ def plan_offline(path, profile, method: str, *, tolerance_mm: float, stringency:
         "cells": res.cells, "segment_plan": _segment_plan(res.cells, path.n_segments),
         "vmax_mm_s": vmax, "amax_mm_s2": min(axis_a["x"], axis_a["y"])})
     return Schedule(ts_s=profile.ts_s, s_mm=res.s_mm, method=method, info=info)
+
+
+def scalar_tolerance(seg_tol: np.ndarray) -> float:
+    """The one number of a per-segment tolerance: its tightest finite value (1 mm when no
+    segment is constrained)."""
+    finite = seg_tol[np.isfinite(seg_tol)]
+    return float(finite.min()) if finite.size else 1.0
 
 
 def _segment_plan(cells: dict, n_segments: int) -> dict:
@@ -347,6 +360,10 @@ def plan_mpc(path, profile, predictor, *, method, tolerance_mm, stringency, vmax
     return Schedule(ts_s=ts, s_mm=res.s_mm, method=method, info=info)
 
 
+def optimizer_of(opts: dict, online: bool) -> str:
+    return opts.get("optimizer") or ("window" if online else "slowdown")
+
+
 def plan_schedule(method: str, path, profile, *, tolerance_mm: float, stringency: float,
                   vmax_mm_s: float | None = None, amax_mm_s2: float | None = None,
                   plant=None, online: bool = False, settings: MpcSettings | None = None,
@@ -373,7 +390,18 @@ def plan_schedule(method: str, path, profile, *, tolerance_mm: float, stringency
         raise FeedOptError(f"unknown method {method!r}; use one of {', '.join(METHODS)}")
     if not (0.5 <= stringency < 1.0):
         raise FeedOptError(f"stringency {stringency} is outside [0.5, 1); pass e.g. 0.95")
-    if not tolerance_mm > 0:
+    if np.ndim(tolerance_mm):
+        tol_arr = np.asarray(tolerance_mm, float)
+        if tol_arr.shape != (path.n_segments,) or not np.all(tol_arr > 0):
+            raise FeedOptError(f"per-feature tolerance: {tol_arr.shape} values for "
+                               f"{path.n_segments} segments, all must be positive")
+        if method in ("conservative", "kinematic"):
+            tolerance_mm = scalar_tolerance(tol_arr)
+        elif optimizer_of(opts, online) != "slowdown":
+            raise FeedOptError("a tolerance per feature is planned by the slow-down optimizer "
+                               "(pb, pidd, oracle offline); the window optimizer takes one "
+                               "--tolerance")
+    elif not tolerance_mm > 0:
         raise FeedOptError(f"tolerance {tolerance_mm} mm must be positive; pass e.g. 0.1")
     unknown = set(opts) - {"seed", "free", "screen", "workers", "optimizer"}
     if unknown:

@@ -285,11 +285,25 @@ class TwinEvaluator:
         self.z = float(z)
         self.tol = float(tol_mm)
         self.reach = float(overshoot_reach_mm)
+        self.seg_tol = None
         #: samples of history that make a window's prediction exact (the twin's memory)
         self.memory = max(h.size for h in tp.h) + tp.maxlag + 1
 
     def predict(self, cmd_xy: np.ndarray, ref_xy: np.ndarray):
         return predict_trajectory(self.tp, cmd_xy, ref=ref_xy)
+
+    def set_feature_tolerance(self, path, seg_tol_mm: np.ndarray) -> None:
+        """Per-feature tolerance: (N,) E_max of each segment of ``path`` (inf: no contour
+        constraint). ``self.tol`` stays the scalar (the tightest finite one) used where one
+        number is needed (which samples get the exact distance)."""
+        self.path = path
+        self.seg_tol = np.asarray(seg_tol_mm, float)
+
+    def tol_at(self, s: np.ndarray):
+        """E_max of samples at arc length ``s``: the scalar, or each one's segment's."""
+        if self.seg_tol is None:
+            return self.tol
+        return self.seg_tol[self.path.segment_at(s)]
 
     def geometry(self, path, s: np.ndarray, s_prev: np.ndarray,
                  s_next: np.ndarray | None = None) -> dict:
@@ -370,6 +384,7 @@ class PlantEvaluator(TwinEvaluator):
         self.z = float(z)
         self.tol = float(tol_mm)
         self.reach = float(overshoot_reach_mm)
+        self.seg_tol = None
         self.memory = None
         self.effects = tuple(e for e in plant.effects if e.stage != "sensor")
 
@@ -711,9 +726,16 @@ def _optimize(state: _State, st: SlowdownSettings, relaxed: np.ndarray, *, grow:
     lo_f, hi_f = st.step
     stats = {"rounds": 0, "whole_file_checks": 0}
 
+    cur = {}
+
     def violations(exact=False):
         s, out, mean, starts = state.evaluate(exact)
-        return np.flatnonzero(out["b"] > tol), out, starts
+        tol_s = state.ev.tol_at(s)
+        viol = np.flatnonzero(out["b"] > tol_s)
+        # the violated samples' E_max: the scalar (bit-identical single-tolerance path) or
+        # each sample's feature's
+        cur["tol"] = tol if np.ndim(tol_s) == 0 else tol_s[viol]
+        return viol, out, starts
 
     def cause(starts, k, widen):
         t0, t1 = state.cell_times(starts)
@@ -739,7 +761,7 @@ def _optimize(state: _State, st: SlowdownSettings, relaxed: np.ndarray, *, grow:
             # at rest (u0) stays; zσ lies below the chord u0 + g·(zσ − u0) as the motion part
             # of σ scales by g, so the factor below never under-slows against the full zσ
             u0 = state.ev.rest_uncertainty()
-            room = st.aim * tol - u0 - rest
+            room = st.aim * cur["tol"] - u0 - rest
             moving = out["mot"][viol] + np.maximum(out["unc"][viol] - u0, 0.0) - rest
             f = np.clip((np.maximum(room, 0.0) / np.maximum(moving, 1e-12)) ** st.exponent,
                         lo_f, cap)
@@ -927,7 +949,7 @@ def plan_slowdown(path, limits: PlannerLimits, evaluator, *, ts_s: float,
         "whole_file_checks": stats["whole_file_checks"],
         "evaluations": state.evaluations + sum(g["evaluations"] for g in group_stats),
         "samples_evaluated": state.evaluated + sum(g["samples_evaluated"] for g in group_stats),
-        "relaxed_samples": int(np.sum(b > evaluator.tol)),
+        "relaxed_samples": int(np.sum(b > evaluator.tol_at(s))),
         "grid_cells": grid.n_cells,
         "slowed_length_fraction": float(np.sum(cell_len[state.scale < 1.0]) /
                                         max(float(np.sum(cell_len)), 1e-12)),

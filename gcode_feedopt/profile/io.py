@@ -188,6 +188,27 @@ def _read_prior(sec: _Section, n: int) -> Prior:
     return Prior(mu=mu, cov=cov, learned_from=learned)
 
 
+def _feature_tolerance(ls: _Section, origin: str) -> dict:
+    """limits.feature_tolerance_mm: {feature: mm or 'none'} (gcode.features)."""
+    from ..errors import FeedOptError
+    from ..gcode.features import check_feature_tolerance
+    v = ls.raw("feature_tolerance_mm", None)
+    if v is None:
+        return {}
+    if not isinstance(v, dict):
+        raise ProfileError(f"{origin}: limits.feature_tolerance_mm must be a mapping "
+                           f"feature: mm, e.g. {{outer_wall: 0.05, infill: 0.3}}")
+    try:
+        tol = check_feature_tolerance(v)
+    except FeedOptError as e:
+        raise ProfileError(f"{origin}: limits.feature_tolerance_mm: {e}") from None
+    for k, x in tol.items():
+        if x != float("inf") and x > 10:
+            raise ProfileError(f"{origin}: limits.feature_tolerance_mm.{k} = {x} mm is above "
+                               f"10 mm")
+    return tol
+
+
 def parse_profile(data, origin: str, base_dir: pathlib.Path | None) -> MachineProfile:
     """Build a MachineProfile from the YAML mapping ``data``."""
     top = _Section(data, "", origin)
@@ -210,6 +231,7 @@ def parse_profile(data, origin: str, base_dir: pathlib.Path | None) -> MachinePr
         max_volumetric_mm3_s=ls.getfloat("max_volumetric_mm3_s", None, above=0, maxval=1000,
                                          allow_none=True),
         filament_diameter_mm=ls.getfloat("filament_diameter_mm", 1.75, above=0.5, maxval=5),
+        feature_tolerance_mm=_feature_tolerance(ls, origin),
     )
     ls.check_unknown()
     fs = top.section("firmware")
@@ -342,6 +364,9 @@ def profile_to_dict(profile: MachineProfile, frf_paths: dict | None = None) -> d
         d["firmware"]["instantaneous_corner_velocity_mm_s"] = F.instantaneous_corner_velocity_mm_s
     if L.max_volumetric_mm3_s is not None:
         d["limits"]["max_volumetric_mm3_s"] = L.max_volumetric_mm3_s
+    if L.feature_tolerance_mm:
+        d["limits"]["feature_tolerance_mm"] = {
+            k: ("none" if v == float("inf") else v) for k, v in L.feature_tolerance_mm.items()}
     if F.configured_accel_mm_s2 is not None:
         d["firmware"]["configured_accel_mm_s2"] = F.configured_accel_mm_s2
     if F.configured_max_accel_mm_s2 is not None:

@@ -28,6 +28,9 @@ class Limits:
         max_volumetric_mm3_s: the hotend's melt limit, mm³/s (``--speed machine`` keeps
             every extruding move within it; None: not stated).
         filament_diameter_mm: for the volumetric limit.
+        feature_tolerance_mm: E_max per slicer feature (gcode.features.FEATURES), e.g.
+            ``{outer_wall: 0.05, infill: 0.3}``; features not named, and untagged files, keep
+            ``tolerance_mm``; ``travel`` has none unless named. Empty: one tolerance.
     """
 
     vmax_mm_s: float
@@ -39,6 +42,7 @@ class Limits:
     stringency: float
     max_volumetric_mm3_s: float | None = None
     filament_diameter_mm: float = 1.75
+    feature_tolerance_mm: dict = field(default_factory=dict)
 
 
 @dataclass(frozen=True)

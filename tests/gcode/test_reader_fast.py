@@ -89,7 +89,7 @@ def test_new_move_is_the_dataclass_instance():
 
     vals = (7, "G2", (1.0, 2.0, 0.2), (3.0, 2.0, 0.2), 0.5, 0.75, 30.0,
             Arc(center_mm=(2.0, 2.0), cw=True, sweep_rad=-3.14159, radius_mm=1.0), "extrude", 3,
-            False, True, (0.0, 0.0, 0.0, -1.5), False, {"X": "3", "E": ".25"})
+            False, True, (0.0, 0.0, 0.0, -1.5), False, {"X": "3", "E": ".25"}, "outer_wall")
     a, b = _new_move(*vals), Move(*vals)
     assert a == b and hash(a) == hash(b) and repr(a) == repr(b)
     assert vars(a) == vars(b) and a.words == b.words and a.de_mm == b.de_mm
