@@ -48,11 +48,17 @@ def children(pid: int) -> list[int]:
         return []
 
 
+def _default_hup():
+    # the run as a terminal starts it: SIGHUP at its default, whatever the test runner
+    # inherited (under nohup it is ignored, and gcode-feedopt keeps it ignored: procs.py)
+    signal.signal(signal.SIGHUP, signal.SIG_DFL)
+
+
 def start(args, cwd, **env):
     return subprocess.Popen([sys.executable, "-m", "gcode_feedopt", *map(str, args)], cwd=cwd,
                             env=dict(os.environ, PYTHONPATH=str(REPO), **env),
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            start_new_session=True)
+                            start_new_session=True, preexec_fn=_default_hup)
 
 
 def wait_for(cond, timeout_s: float, p: subprocess.Popen) -> bool:
