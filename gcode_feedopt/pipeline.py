@@ -273,10 +273,13 @@ def optimize_file(in_path, out_path, profile, opts: Options, progress=None) -> R
         t0 = time.perf_counter()
         say("writing")
         cells = sched.info.get("cells")
-        axis_a = effective_limits(profile, opts.vmax_mm_s, opts.amax_mm_s2)[2]
+        # the X/Y acceleration the plan chose (optimize.methods.search_acceleration) is written
+        # as --amax would be: the file's own settings clamped to it, M201 before the first move
+        amax_w = sched.info.get("accel_chosen_mm_s2") or opts.amax_mm_s2
+        axis_a = effective_limits(profile, opts.vmax_mm_s, amax_w)[2]
         clamp = firmware.accel_clamp(program, profile, axis_a)
         result = write(program, path, sched, profile, mode=opts.mode,
-                       accel_mm_s2=writer_accel(path, profile, fw_limits, opts.amax_mm_s2),
+                       accel_mm_s2=writer_accel(path, profile, fw_limits, amax_w),
                        cells=cells, clamp=clamp,
                        feed_cap_mm_s=planning_path(path, opts.speed, profile,
                                                    opts.vmax_mm_s).feed_mm_s,
@@ -352,8 +355,21 @@ def optimize_file(in_path, out_path, profile, opts: Options, progress=None) -> R
                **{k: info[k] for k in ("optimizer", "window_status", "fallback_windows",
                                         "relaxed_windows", "relaxed_samples", "rounds",
                                         "whole_file_checks", "samples_evaluated",
-                                        "slowed_length_fraction", "compute_s", "solver_s")
-                  if k in info}})
+                                        "slowed_length_fraction", "compute_s", "solver_s",
+                                        "accel_chosen_mm_s2")
+                  if k in info},
+               **({"accel_search": [{"accel_mm_s2": a, "plan_time_s": t}
+                                    for a, t in info["accel_search"]]}
+                  if info.get("accel_search") else {})})
+    if info.get("accel_chosen_mm_s2") and not keep:
+        tried = info["accel_search"]
+        rep.notes.append(
+            f"X/Y acceleration lowered to {info['accel_chosen_mm_s2']:.0f} mm/s² (from "
+            f"{tried[0][0]:.0f}): the twin predicts the ringing after each acceleration step "
+            f"breaks the tolerance, and the plan at the lower acceleration is faster than the "
+            f"one that slows down around it ({tried[0][1]:.1f} s at {tried[0][0]:.0f}, "
+            f"{sched.duration_s:.1f} s at {info['accel_chosen_mm_s2']:.0f}); the file sets it "
+            "(M201/M204 or SET_VELOCITY_LIMIT) so the firmware runs it")
     if result.plan_limit_lines and not keep:
         fw_c = profile.firmware
         conf = ", ".join(f"{k} {v:g}" for k, v in (

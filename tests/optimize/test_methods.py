@@ -374,3 +374,48 @@ def test_slicer_feed_caps_every_method(ender, butterfly_piece, method, optimizer
     assert np.any(path.de_mm > 0) and np.allclose(path.feed_mm_s[path.de_mm > 0], 30.0)
     free = plan_schedule(method, path, ender, tolerance_mm=0.1, stringency=0.95, **opts)
     assert s.duration_s > 1.2 * free.duration_s
+
+
+def test_acceleration_search_stops_at_the_kinematic_bound():
+    """search_acceleration tries a lower acceleration only while the firmware's own plan there
+    (a lower bound of any slow-down of it) is faster than the best plan found, skips one that
+    leaves F unchanged, and keeps the first plan when no candidate beats it."""
+    from types import SimpleNamespace
+
+    from gcode_feedopt import pipeline
+    from gcode_feedopt.optimize.methods import search_acceleration
+    from gcode_feedopt.plan.kinematic import effective_limits, plan_trapezoids
+
+    prof = load_profile("ender3pro")
+    path = pipeline.path_for(pipeline.read_for(
+        pathlib.Path(__file__).resolve().parents[2] / "sample_gcode" / "butterfly.gcode", prof),
+        prof)
+    vmax, axis_v, axis_a = effective_limits(prof, None, None)
+    kin = plan_trapezoids(path, vmax_mm_s=vmax, axis_vmax_mm_s=axis_v, axis_amax_mm_s2=axis_a,
+                          firmware=prof.firmware).duration_s
+    ts = prof.ts_s
+
+    def fake(t_s, slowed=0.3):
+        return SimpleNamespace(s_mm=np.zeros(int(round(t_s / ts)) + 1),
+                               info={"slowed_length_fraction": slowed, "relaxed_samples": 0})
+
+    calls = []
+    kw = dict(vmax=vmax, axis_v=axis_v, axis_a=axis_a, fw_limits=None, use_slicer_feed=False)
+    # a first plan barely slower than F: the firmware's plan at 0.7·A is already slower
+    first = fake(kin * 1.0005)
+    best, chosen, tried = search_acceleration(path, prof, first,
+                                              lambda a: calls.append(a) or fake(kin), **kw)
+    assert best is first and chosen is None and calls == [] and len(tried) == 1
+    # a first plan twice F's time: lower accelerations are tried, the fastest kept
+    times = iter([kin * 1.5, kin * 1.3, kin * 1.4, kin * 1.6])
+    first = fake(kin * 2.0)
+    best, chosen, tried = search_acceleration(path, prof, first,
+                                              lambda a: calls.append(a) or fake(next(times)), **kw)
+    a0 = min(axis_a["x"], axis_a["y"])
+    assert chosen == pytest.approx(0.5 * a0) and (best.s_mm.size - 1) * ts == pytest.approx(kin * 1.3, abs=ts)
+    assert [c["x"] for c in calls] == pytest.approx([0.7 * a0, 0.5 * a0, 0.35 * a0, 0.25 * a0][:len(calls)])
+    # nothing slowed: nothing tried
+    calls.clear()
+    best, chosen, tried = search_acceleration(path, prof, fake(kin, slowed=0.0),
+                                              lambda a: calls.append(a) or fake(kin), **kw)
+    assert calls == [] and chosen is None
