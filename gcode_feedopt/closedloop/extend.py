@@ -10,7 +10,8 @@ extensions, ``axes.<axis>.effects`` in the YAML:
   extended response;
 - ``periodic_position``, ``backlash``, ``friction``, ``cross_coupling`` add a deterministic term
   to the twin's mean prediction (``twin.extensions.mean_offsets``, used by ``predict`` and
-  ``learn``); the optimizer's predictor does not use these yet (stated in docs/diagnose.md);
+  ``learn``); the slow-down optimizer adds ``cross_coupling``'s
+  (``twin.extensions.motion_offsets``), not the others (docs/diagnose.md, *Not done*);
 - ``periodic_time`` (a fan, no phase kept from print to print) adds A²/2 to the prediction's
   variance.
 

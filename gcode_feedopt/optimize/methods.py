@@ -30,7 +30,7 @@ from ..errors import FeedOptError
 from ..plan.kinematic import (effective_limits, plan_kinematic, plan_trapezoids, planner_limits,
                               segment_plan)
 from ..plan.schedule import Schedule
-from ..twin.extensions import extra_variance_mm2
+from ..twin.extensions import extra_variance_mm2, motion_offsets
 from ..twin.model import axis_noise_mm, axis_prior, learned_speed_noise_s, twin_impulse
 from ..vm.metrics import evaluate
 from ..vm.plant import Plant
@@ -128,7 +128,8 @@ def make_twin_predictor(profile, method: str, *, learn: bool):
     of a fan ``diagnose -o`` wrote as an extension, twin.extensions.extra_variance_mm2) and
     the part of it that grows with the commanded speed (twin.model.learned_speed_noise_s),
     which widen the chance constraint by what the twin cannot predict. (The extensions'
-    deterministic terms, twin.extensions.mean_offsets, are not part of the predictor.)"""
+    deterministic terms, twin.extensions.mean_offsets, are not part of the predictor: the
+    slow-down optimizer adds the cross-coupling's, twin.extensions.motion_offsets.)"""
     tw = profile.twin
     irs = [twin_impulse(profile, ax, method=method) for ax in ("x", "y")]
     priors = [axis_prior(profile, ax, method=method) for ax in ("x", "y")]
@@ -281,7 +282,8 @@ def plan_offline(path, profile, method: str, *, tolerance_mm: float, stringency:
     else:
         predictor = make_twin_predictor(profile, method, learn=False)
         check_noise_floor(predictor, profile, tolerance_mm, stringency)
-        evaluator = TwinEvaluator(predictor, rules, ts_s=profile.ts_s, **kw)
+        evaluator = TwinEvaluator(predictor, rules, ts_s=profile.ts_s,
+                                  offsets=motion_offsets(profile), **kw)
     if seg_tol is not None:
         evaluator.set_feature_tolerance(path, seg_tol)
     res = plan_slowdown(path, limits, evaluator, ts_s=profile.ts_s, settings=settings)

@@ -278,7 +278,7 @@ class TwinEvaluator:
     """The chance bound of sampled plans with the offline twin (TwinPredictor's prior)."""
 
     def __init__(self, tp, rules, *, z: float, tol_mm: float, overshoot_reach_mm: float,
-                 ts_s: float = 0.002):
+                 ts_s: float = 0.002, offsets=None):
         self.tp = tp
         self.rules = rules
         self.ts_s = float(ts_s)
@@ -288,9 +288,18 @@ class TwinEvaluator:
         self.seg_tol = None
         #: samples of history that make a window's prediction exact (the twin's memory)
         self.memory = max(h.size for h in tp.h) + tp.maxlag + 1
+        #: (function cmd (K, 2) -> (K, 2) mm, its memory) of the profile's extensions that
+        #: add to the mean (twin.extensions.motion_offsets), or None
+        self.offsets = None
+        if offsets is not None:
+            self.offsets = offsets[0]
+            self.memory = max(self.memory, int(offsets[1]) + 1)
 
     def predict(self, cmd_xy: np.ndarray, ref_xy: np.ndarray):
-        return predict_trajectory(self.tp, cmd_xy, ref=ref_xy)
+        mean, std = predict_trajectory(self.tp, cmd_xy, ref=ref_xy)
+        if self.offsets is not None:
+            mean = mean + self.offsets(cmd_xy).T
+        return mean, std
 
     def set_feature_tolerance(self, path, seg_tol_mm: np.ndarray) -> None:
         """Per-feature tolerance: (N,) E_max of each segment of ``path`` (inf: no contour

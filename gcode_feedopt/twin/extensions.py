@@ -175,6 +175,47 @@ def mean_offsets(profile, cmd_mm: np.ndarray) -> np.ndarray:
     return out
 
 
+#: additive kinds the optimizer's prediction carries: a cross-coupling is the other axis's
+#: motion through this one's dynamics (finite memory, linear in the command, shrinks as the
+#: motion slows); the others stay whatever the speed (friction, a pitch error, backlash's
+#: band) or hold a state from the whole history (backlash), which the slow-down's windows
+#: cannot carry
+MOTION_KINDS = ("cross_coupling",)
+
+
+def motion_offsets(profile):
+    """A function cmd (K, 2) -> (K, 2), mm: what the profile's MOTION_KINDS extensions add to
+    the twin's mean prediction of X, Y, and the samples of history it needs (a ``belt``
+    cross-coupling filters through the dynamics twice); None when the profile has none."""
+    from .physics import axis_impulse
+
+    axes = ("x", "y")
+    todo = [(i, ax, e) for i, ax in enumerate(axes) for e in profile.axes[ax].effects
+            if e["kind"] in MOTION_KINDS]
+    if not todo:
+        return None
+    h = {}
+    for ax in axes:
+        m = np.asarray(axis_impulse(profile, ax).mean)
+        h[ax] = m / np.sum(m)
+    twice = any({**DEFAULTS[e["kind"]], **e["params"]}["form"] == "belt" for _, _, e in todo)
+    # the response of the other axis's prediction, its acceleration (np.gradient reaches two
+    # samples) and once or twice through the dynamics: what a window must remember
+    memory = (2 if twice else 1) * max(v.size for v in h.values()) + 4
+
+    def offsets(cmd_mm):
+        cmd = np.asarray(cmd_mm, float)
+        out = np.zeros((cmd.shape[0], 2))
+        preds = {ax: respond(cmd[:, i], h[ax]) for i, ax in enumerate(axes)}
+        for i, ax, e in todo:
+            out[:, i] += additive_term(e["kind"], e["params"], cmd[:, i], profile.ts_s, h[ax],
+                                       other_pred_mm=preds.get(e["params"].get("from_axis")),
+                                       pred_mm=preds[ax])
+        return out
+
+    return offsets, memory
+
+
 def _force_h(profile, axis):
     # cycle: closedloop.diagnose imports this module (axis_physics belongs in twin/, issue 17)
     from ..closedloop.diagnose import axis_physics

@@ -1,0 +1,60 @@
+"""The optimizer plans with the profile's extensions that move with the motion (issue 19): a
+cross-coupling that ``diagnose -o`` wrote is part of the mean the chance bound is judged on,
+through the slow-down's windows exactly as over the whole file."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from gcode_feedopt import pipeline
+from gcode_feedopt.closedloop.extend import extend_profile
+from gcode_feedopt.optimize.methods import make_twin_predictor, plan_schedule
+from gcode_feedopt.optimize.predictors import predict_trajectory
+from gcode_feedopt.profile import load_profile
+from gcode_feedopt.twin.extensions import motion_offsets
+
+from ..conftest import REPO
+from .test_end_to_end import with_limits
+
+BUTTERFLY = REPO / "sample_gcode" / "butterfly.gcode"
+#: a corexy's belt cross-talk, y from x: ~25 µm at 5 m/s² (tests/foreign: 64–96 % of a drawn
+#: corexy's cross-talk is this form)
+BELT = {"kind": "cross_coupling", "axis": "y",
+        "params": {"from_axis": "x", "mm_per_mm_s2": 5e-6, "form": "belt"}}
+
+
+def _setup():
+    prof = with_limits(load_profile("ender3pro"), 150.0, 5000.0)
+    path = pipeline.path_for(pipeline.read_for(BUTTERFLY, prof), prof)
+    return prof, extend_profile(prof, [BELT]), path
+
+
+def test_only_motion_kinds_reach_the_plan():
+    prof, ext, _ = _setup()
+    assert motion_offsets(prof) is None
+    fan = {"kind": "periodic_time", "axis": "x", "params": {"frequency_hz": 20.0,
+                                                            "amplitude_mm": 0.01}}
+    assert motion_offsets(extend_profile(prof, [fan])) is None
+    off, memory = motion_offsets(ext)
+    n = max(np.asarray(make_twin_predictor(prof, "pidd", learn=False).h[0]).size, 1)
+    assert memory >= 2 * n  # belt: through the dynamics twice
+
+
+def test_the_plan_is_judged_with_the_cross_coupling():
+    """The prediction of the final plan (assembled from the slow-down's windows and checked
+    with the whole memory) is the twin's whole-file mean plus the extension's term, to 1 nm;
+    the term is tens of µm, so the plan slows down more than without it."""
+    prof, ext, path = _setup()
+    tol, eta = 0.05, 0.95
+    plain = plan_schedule("pidd", path, prof, tolerance_mm=tol, stringency=eta)
+    sch = plan_schedule("pidd", path, ext, tolerance_mm=tol, stringency=eta)
+    s = sch.s_mm
+    cmd = path.position(s)[:, :2]
+    off, _ = motion_offsets(ext)
+    term = off(cmd)
+    assert np.abs(term[:, 1]).max() > 0.01 and np.abs(term[:, 0]).max() == 0.0
+    tp = make_twin_predictor(ext, "pidd", learn=False)
+    mean, _ = predict_trajectory(tp, cmd, ref=cmd[0])
+    np.testing.assert_allclose(sch.info["_predicted_xy_mm"], mean.T + term, atol=1e-6)
+    assert sch.duration_s > plain.duration_s
+    assert sch.info["relaxed_samples"] == 0
