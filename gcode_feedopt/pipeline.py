@@ -361,6 +361,10 @@ def optimize_file(in_path, out_path, profile, opts: Options, progress=None) -> R
                **({"accel_search": [{"accel_mm_s2": a, "plan_time_s": t}
                                     for a, t in info["accel_search"]]}
                   if info.get("accel_search") else {})})
+    rep.extra["time_split_s"] = time_split(
+        fw_in=fw_in, fw_in_raised=fw_in_raised, t_in=t_in, fw_out=fw_in if keep else fw_out,
+        plan_s=sched.duration_s, kinematic_s=_kinematic_time(sched, path, profile, opts,
+                                                             fw_limits), keep=keep)
     if info.get("accel_chosen_mm_s2") and not keep:
         tried = info["accel_search"]
         rep.notes.append(
@@ -414,6 +418,43 @@ def optimize_file(in_path, out_path, profile, opts: Options, progress=None) -> R
                                              feature_tolerance_map(profile, opts).items()}
     rep.notes.extend(tol_notes)
     return rep
+
+
+def _kinematic_time(sched, path, profile, opts: Options, fw_limits) -> float:
+    """The firmware's own plan of the path under the run's speed policy and limits, s: the
+    plan itself for ``kinematic``, what the offline optimizer measured it at, else planned."""
+    if sched.method == "kinematic":
+        return sched.duration_s
+    if sched.info.get("kinematic_time_s") is not None:
+        return float(sched.info["kinematic_time_s"])
+    vmax = plan_vmax(profile, opts.speed, opts.vmax_mm_s)
+    _, axis_v, axis_a = effective_limits(profile, vmax, opts.amax_mm_s2)
+    return plan_trapezoids(planning_path(path, opts.speed, profile, opts.vmax_mm_s),
+                           vmax_mm_s=vmax, axis_vmax_mm_s=axis_v, axis_amax_mm_s2=axis_a,
+                           firmware=profile.firmware, use_slicer_feed=True,
+                           fw_limits=fw_limits).duration_s
+
+
+def time_split(*, fw_in: float, fw_in_raised: float, t_in: float, fw_out: float, plan_s: float,
+               kinematic_s: float, keep: bool) -> dict:
+    """Where the time went, s (negative: saved), summing to output − input exactly:
+
+    - ``limits``: the original run at the plan's limits instead of as the printer is
+      configured (the acceleration and maxima our file sets before its first move);
+    - ``feed``: the firmware's plan under the speed policy against the slicer's feeds (0 under
+      ``--speed slicer``, where no move is faster than sliced);
+    - ``junctions``: 0: the plan keeps the firmware's own junction rule (junction deviation,
+      square-corner velocity, classic jerk), lowered only where a stretch is slowed;
+    - ``twin``: the optimizer's plan against the firmware's own at those limits (its slow-downs
+      and lower acceleration where the twin predicts the tolerance would break: ≥ 0);
+    - ``firmware_vs_plan``: what the firmware model adds to the plans (the original's and
+      ours): junction and look-ahead details, the lines written.
+    A kept input (slower output not written) is all zeros."""
+    if keep:
+        return {k: 0.0 for k in ("limits", "feed", "junctions", "twin", "firmware_vs_plan")}
+    return {"limits": fw_in_raised - fw_in, "feed": kinematic_s - t_in, "junctions": 0.0,
+            "twin": plan_s - kinematic_s,
+            "firmware_vs_plan": (t_in - fw_in_raised) + (fw_out - plan_s)}
 
 
 def feature_breakdown(path, sched, seg_feats, tolerance, ts_s: float) -> dict:

@@ -82,6 +82,15 @@ class Report:
                          f"{self.plan_time_s:.2f} s; contour error worst {ex['max_contour_error_mm']:.3f} mm, "
                          f"95th percentile {ex['p95_contour_error_mm']:.3f} mm, "
                          f"{ex['within_fraction']:.1%} within tolerance")
+        sp = (self.extra or {}).get("time_split_s")
+        if sp and any(abs(v) >= 0.05 for v in sp.values()):
+            lines.append(
+                f"  where the time went (s; − saved): limits {sp['limits']:+.1f} (as configured → "
+                f"the plan's), feed {sp['feed']:+.1f}"
+                + (" (--speed machine)" if self.speed == "machine" else " (sliced F kept)")
+                + f", junctions {sp['junctions']:+.1f} (the firmware's rule kept), twin "
+                f"{sp['twin']:+.1f} (slow-downs where the tolerance needs them), firmware vs "
+                f"plan {sp['firmware_vs_plan']:+.1f}")
         feats = (self.extra or {}).get("features")
         if feats:
             lines.append("  per feature (plan s / worst / p95 mm): " + "; ".join(

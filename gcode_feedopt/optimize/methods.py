@@ -217,7 +217,9 @@ def search_acceleration(path, profile, first, plan_at, *, vmax, axis_v, axis_a, 
     costs one kinematic plan. A candidate that leaves F unchanged (the file's own M204 below
     it) is skipped; one that gives up on more samples than the best is not taken.
 
-    Returns (plan, acceleration chosen or None, [(acceleration, plan time s), …] tried)."""
+    Returns (plan, acceleration chosen or None, [(acceleration, plan time s), …] tried; the
+    first entry also carries the firmware's own plan time at F's acceleration when the first
+    plan was slowed — else the first plan is that plan)."""
     ts = profile.ts_s
 
     def t_plan(r):
@@ -235,6 +237,7 @@ def search_acceleration(path, profile, first, plan_at, *, vmax, axis_v, axis_a, 
     if not first.info.get("slowed_length_fraction", 0.0) > 0.0:
         return best, chosen, tried
     t_prev = t_kin(a0)
+    tried[0] = (a0, t_plan(first), t_prev)
     t_kin_best = t_prev
     for f in factors:
         a = a0 * f
@@ -309,7 +312,10 @@ def plan_offline(path, profile, method: str, *, tolerance_mm: float, stringency:
         "cells": res.cells, "segment_plan": _segment_plan(res.cells, path.n_segments),
         "vmax_mm_s": vmax,
         "amax_mm_s2": chosen if chosen is not None else min(axis_a["x"], axis_a["y"]),
-        "accel_chosen_mm_s2": chosen, "accel_search": tried})
+        "accel_chosen_mm_s2": chosen, "accel_search": [t[:2] for t in tried],
+        # the firmware's own plan of the path at F's limits (what the twin's changes are
+        # measured against: the report's time split)
+        "kinematic_time_s": tried[0][2] if len(tried[0]) > 2 else tried[0][1]})
     return Schedule(ts_s=profile.ts_s, s_mm=res.s_mm, method=method, info=info)
 
 
