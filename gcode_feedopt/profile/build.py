@@ -25,7 +25,10 @@ def build_from_frfs(base: MachineProfile, files: dict, *, name: str,
     axes = dict(base.axes)
     for axis, paths in files.items():
         if paths:
-            frf = frf_set_from_files(paths)
+            notes = []
+            frf = frf_set_from_files(paths, notes=notes)
+            for n in notes:
+                warnings.warn(f"axis {axis}: {n}", ModelWarning, stacklevel=2)
             axes[axis] = AxisModel(frf=frf, modes=(), provenance={
                 "kind": "measured", "files": [str(pathlib.Path(f).resolve()) for f in paths],
                 "n_measurements": frf.n_measurements})
