@@ -21,11 +21,14 @@ def test_builtins_load_and_are_in_published_ranges():
 
 
 def test_regeneration_is_identical(tmp_path):
+    """voron24's FRFs are estimated from measured data; their last digits follow the CPU's FFT
+    and BLAS kernels (3.7e-8 apart on two machines): 1e-6 for it, 1e-10 for the synthetic ones."""
     for name, make in BUILTINS.items():
         path = save_profile(make(), tmp_path / f"{name}.yaml")
         a, b = load_profile(path), load_profile(name)
+        rtol = 1e-6 if name == "voron24" else 1e-10
         for ax in "xy":
-            np.testing.assert_allclose(a.axes[ax].frf.response, b.axes[ax].frf.response, rtol=1e-10)
+            np.testing.assert_allclose(a.axes[ax].frf.response, b.axes[ax].frf.response, rtol=rtol)
         assert a.limits == b.limits and a.firmware == b.firmware
 
 

@@ -97,13 +97,17 @@ def test_ender3pro_modes_soften_with_amplitude():
 
 
 def test_regeneration_matches_shipped_files_to_1e12(tmp_path):
+    """Synthetic profiles to 1e-12; voron24's FRFs are estimated from measured accelerometer
+    data (Welch spectra, coherence weights), whose last digits follow the FFT and BLAS kernels
+    of the CPU at hand (3.7e-8 on a machine other than the one that wrote them): to 1e-6."""
     from gcode_feedopt.profile.builtin import write_builtins
 
     for path in write_builtins(tmp_path):
         a, b = load_profile(path), load_profile(path.stem)
+        atol = 1e-6 if path.stem == "voron24" else 1e-12
         for ax in "xy":
             np.testing.assert_allclose(a.axes[ax].frf.response, b.axes[ax].frf.response,
-                                       rtol=0, atol=1e-12)
+                                       rtol=0, atol=atol)
             np.testing.assert_allclose(a.axes[ax].frf.freq_hz, b.axes[ax].frf.freq_hz,
                                        rtol=0, atol=1e-12)
         assert a.limits == b.limits and a.firmware == b.firmware and a.provenance == b.provenance
