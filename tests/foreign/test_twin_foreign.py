@@ -70,6 +70,12 @@ def belt11(tmp_path_factory):
     return _set(tmp_path_factory, 11, effects=True)
 
 
+@pytest.fixture(scope="module")
+def corexy13(tmp_path_factory):
+    # a corexy whose belts differ: its cross-talk is inherent (cross_coupling is there)
+    return _set(tmp_path_factory, 13, effects=False)
+
+
 @pytest.mark.parametrize("which", ["servo4", "servo8"])
 def test_prior_prediction_of_a_servo_beats_actual_equals_command(which, request):
     """Before: seed 4 y erred 1139 µm RMS (two members put a mode below the band), seed 8 y
@@ -92,17 +98,19 @@ def test_no_member_mode_below_the_measured_band(servo4):
             assert m.freq_hz.min() >= f0 * (1 - 1e-9), (ax, m.freq_hz)
 
 
-@pytest.mark.parametrize("which", ["servo4", "servo8", "hotend1", "belt11"])
+@pytest.mark.parametrize("which", ["servo4", "servo8", "hotend1", "belt11", "corexy13"])
 def test_clean_logs_of_a_plant_inside_the_spread_are_none(which, request):
     """belt11: every clean log was named a resonance_shift x to 49.7 Hz, a move of the
     lightly damped mode inside the members' own band that the draw's first-order directions
-    cannot follow (diagnose._absorb_mode)."""
+    cannot follow (diagnose._absorb_mode). corexy13: after its belt cross-talk was named, the
+    same move was named on log_03 (57.8 Hz): the bar holds in every round."""
     out, labels, prof = request.getfixturevalue(which)
+    inherent = {(e["kind"], e["axis"]) for e in labels["inherent"]}
     for e in labels["logs"]:
         if e["effects"][0]["kind"] != "none":
             continue
         d = diagnose_log(_log(out, prof, e["file"].split("/")[-1]), prof)
-        named = [g for g in d.effects if g["kind"] != "none"]
+        named = [g for g in d.effects if g["kind"] != "none" and (g["kind"], g["axis"]) not in inherent]
         assert not named, (which, e["file"], named)
 
 
