@@ -46,42 +46,40 @@ def _rms(v):
     return float(np.sqrt(np.mean(np.square(v))))
 
 
-@pytest.fixture(scope="module")
-def servo4(tmp_path_factory):
+#: The data sets the tests use: name -> (seed, with effect logs), each made once per module.
+SETS = {
     # PID servo on a lead screw, 0.9 ms transport delay, 8 FRFs from 3 Hz in 2 Hz steps
-    return _set(tmp_path_factory, 4, effects=False)
-
-
-@pytest.fixture(scope="module")
-def servo8(tmp_path_factory):
+    "servo4": (4, False),
     # PID servo, 6 FRFs from 1 Hz in 0.5 Hz steps, 2.8 % noise
-    return _set(tmp_path_factory, 8, effects=False)
-
-
-@pytest.fixture(scope="module")
-def hotend1(tmp_path_factory):
+    "servo8": (8, False),
     # belt + frame + a hotend on a flexible mount sensed at the nozzle: three modes
-    return _set(tmp_path_factory, 1, effects=True)
-
-
-@pytest.fixture(scope="module")
-def belt11(tmp_path_factory):
+    "hotend1": (1, True),
     # belt + frame, x 50.5 Hz ζ 0.026 whose 6 FRFs (2 Hz steps, 3 % noise) put it at 49.0–50.4 Hz
-    return _set(tmp_path_factory, 11, effects=True)
+    "belt11": (11, True),
+    # a corexy whose belts differ: its cross-talk is inherent (cross_coupling is there)
+    "corexy13": (13, False),
+}
 
 
 @pytest.fixture(scope="module")
-def corexy13(tmp_path_factory):
-    # a corexy whose belts differ: its cross-talk is inherent (cross_coupling is there)
-    return _set(tmp_path_factory, 13, effects=False)
+def dataset(tmp_path_factory):
+    made = {}
+
+    def get(name):
+        if name not in made:
+            seed, effects = SETS[name]
+            made[name] = _set(tmp_path_factory, seed, effects=effects)
+        return made[name]
+
+    return get
 
 
 @pytest.mark.parametrize("which", ["servo4", "servo8"])
-def test_prior_prediction_of_a_servo_beats_actual_equals_command(which, request):
+def test_prior_prediction_of_a_servo_beats_actual_equals_command(which, dataset):
     """Before: seed 4 y erred 1139 µm RMS (two members put a mode below the band), seed 8 y
     100 µm (the closed loop's real poles forced into ζ ≤ 0.9), against 386 / 377 µm for
     'actual = command'."""
-    out, _, prof = request.getfixturevalue(which)
+    out, _, prof = dataset(which)
     log = _log(out, prof, "log_01.csv")
     for i, ax in enumerate("xy"):
         mean, _ = axis_twin(prof, ax).run(log.cmd_mm[:, i], log.pos_mm[:, i], learn=False)
@@ -90,8 +88,8 @@ def test_prior_prediction_of_a_servo_beats_actual_equals_command(which, request)
         assert twin < 0.1 * none, (which, ax, twin, none)
 
 
-def test_no_member_mode_below_the_measured_band(servo4):
-    out, _, prof = servo4
+def test_no_member_mode_below_the_measured_band(dataset):
+    out, _, prof = dataset("servo4")
     for ax in "xy":
         f0 = float(prof.axes[ax].frf.freq_hz[0])
         for m in axis_modal(prof, ax, warn=False).models:
@@ -99,12 +97,12 @@ def test_no_member_mode_below_the_measured_band(servo4):
 
 
 @pytest.mark.parametrize("which", ["servo4", "servo8", "hotend1", "belt11", "corexy13"])
-def test_clean_logs_of_a_plant_inside_the_spread_are_none(which, request):
+def test_clean_logs_of_a_plant_inside_the_spread_are_none(which, dataset):
     """belt11: every clean log was named a resonance_shift x to 49.7 Hz, a move of the
     lightly damped mode inside the members' own band that the draw's first-order directions
     cannot follow (diagnose._absorb_mode). corexy13: after its belt cross-talk was named, the
     same move was named on log_03 (57.8 Hz): the bar holds in every round."""
-    out, labels, prof = request.getfixturevalue(which)
+    out, labels, prof = dataset(which)
     inherent = {(e["kind"], e["axis"]) for e in labels["inherent"]}
     for e in labels["logs"]:
         if e["effects"][0]["kind"] != "none":
@@ -115,10 +113,10 @@ def test_clean_logs_of_a_plant_inside_the_spread_are_none(which, request):
 
 
 @pytest.mark.parametrize("which", ["hotend1", "belt11"])
-def test_effects_named_with_their_parameter(which, request):
+def test_effects_named_with_their_parameter(which, dataset):
     """Three modes (hotend1), and a lightly damped belt (belt11: its −12 % shift must still be
     named where a move inside the members' band no longer is)."""
-    out, labels, prof = request.getfixturevalue(which)
+    out, labels, prof = dataset(which)
     key = {"delay": "seconds", "gain": "scale", "periodic_time": "amplitude_mm",
            "resonance_shift": "frequency_hz"}
     for e in labels["logs"]:
@@ -134,12 +132,12 @@ def test_effects_named_with_their_parameter(which, request):
         assert abs(gv - tv) <= 0.05 * abs(tv), (e["file"], truth, g)
 
 
-def test_profile_build_and_diagnose_cli_on_a_servo(servo4, tmp_path):
+def test_profile_build_and_diagnose_cli_on_a_servo(dataset, tmp_path):
     """The user's path: `profile build` from the servo's files (its fits have real pole pairs,
     ζ > 1, which the profile schema refused before), then `diagnose` and `predict` with it."""
     import subprocess
 
-    out, _, _ = servo4
+    out, _, _ = dataset("servo4")
     prof = tmp_path / "servo.yaml"
     cmd = [sys.executable, "-m", "gcode_feedopt"]
     r = subprocess.run(cmd + ["profile", "build", "--frf-x", *map(str, sorted((out / "frf").glob("x_*.csv"))),
