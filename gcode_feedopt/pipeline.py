@@ -45,6 +45,9 @@ class Options:
     mode: str = "refeed"
     #: plan.speed.SPEEDS: ``slicer`` (every move at most its sliced F) or ``machine``
     speed: str = "slicer"
+    #: vm.firmware.ACCELS: ``plan`` (the plan's accelerations override lower ones the file
+    #: sets) or ``file`` (the file's own kept)
+    accel: str = "plan"
     #: write the output even when it runs slower than the input
     allow_slower: bool = False
     force: bool = False
@@ -213,6 +216,8 @@ def run_settings(profile, opts: Options) -> str:
             f"tolerance {g(opts.tolerance_mm or profile.limits.tolerance_mm)}, "
             f"stringency {g(opts.stringency or profile.limits.stringency)}, "
             f"vmax {g(opts.vmax_mm_s)}, amax {g(opts.amax_mm_s2)}, mode {opts.mode}"
+            # outputs made before --accel kept the file's accelerations: no word is ``file``
+            + (f", accel {opts.accel}" if opts.accel != "file" else "")
             + "".join(f", {k} {g(v)}" for k, v in feature_tolerance_map(profile, opts).items()))
 
 
@@ -252,7 +257,11 @@ def optimize_file(in_path, out_path, profile, opts: Options, progress=None) -> R
             f"{in_path}:{program.processed_line + 1}: already processed by gcode-feedopt; "
             "pass --force to process it again (re-slice for the best result)")
     t0 = time.perf_counter()
-    fw_limits = firmware.move_limits(program, profile)
+    # --accel plan: the plan's accelerations where the file's lines lower them (the writer
+    # adds a line after each such line); the planner, the clamp and the slowed stretches'
+    # restores see the plan's values
+    override = firmware.accel_override(program, profile, opts.accel)
+    fw_limits = firmware.move_limits(program, profile, override=override)
     with gc_paused():
         path = path_for(program, profile, fw_limits)
     if path.n_segments == 0:
@@ -277,15 +286,15 @@ def optimize_file(in_path, out_path, profile, opts: Options, progress=None) -> R
         # as --amax would be: the file's own settings clamped to it, M201 before the first move
         amax_w = sched.info.get("accel_chosen_mm_s2") or opts.amax_mm_s2
         axis_a = effective_limits(profile, opts.vmax_mm_s, amax_w)[2]
-        clamp = firmware.accel_clamp(program, profile, axis_a)
-        result = write(program, path, sched, profile, mode=opts.mode,
+        clamp = firmware.accel_clamp(program, profile, axis_a, override)
+        result = write(program, path, sched, profile, mode=opts.mode, override=override,
                        accel_mm_s2=writer_accel(path, profile, fw_limits, amax_w),
                        cells=cells, clamp=clamp,
                        feed_cap_mm_s=planning_path(path, opts.speed, profile,
                                                    opts.vmax_mm_s).feed_mm_s,
                        run_settings=run_settings(profile, opts),
                        settings=None if cells is None and not firmware.raises_configured(profile)
-                       else firmware.accel_settings(program, profile, clamp))
+                       else firmware.accel_settings(program, profile, clamp, override))
         wall["write"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         fw = profile.firmware
@@ -302,6 +311,9 @@ def optimize_file(in_path, out_path, profile, opts: Options, progress=None) -> R
         fw_out = firmware.estimate_time_s(out_program, configured)
         fw_in_raised = (fw_in if configured is profile
                         else firmware.estimate_time_s(program, profile))
+        # ... and at the plan's accelerations over the file's own (--accel plan)
+        fw_in_plan = (fw_in_raised if override is None
+                      else firmware.estimate_time_s(program, profile, override=override))
         wall["firmware"] = time.perf_counter() - t0
     executed = None
     if sched.method != "kinematic":
@@ -336,6 +348,7 @@ def optimize_file(in_path, out_path, profile, opts: Options, progress=None) -> R
     rep = Report(
         input=str(in_path), output=None if opts.dry_run else str(out_path),
         machine=profile.name, method=sched.method, mode=opts.mode, speed=opts.speed,
+        accel=opts.accel,
         tolerance_mm=opts.tolerance_mm or profile.limits.tolerance_mm,
         stringency=opts.stringency or profile.limits.stringency,
         moves=len(program.moves), moves_changed=0 if keep else result.moves_changed,
@@ -350,7 +363,8 @@ def optimize_file(in_path, out_path, profile, opts: Options, progress=None) -> R
         predicted_p95_contour_error_mm=info.get("predicted_p95_contour_error_mm"),
         stage_wall_s={k: round(v, 4) for k, v in wall.items()},
         extra={"input_time_same_limits_s": t_in, "input_time_profile_limits_s": fw_in_raised,
-               "accel_lines": result.accel_lines,
+               "input_time_plan_accel_s": fw_in_plan,
+               "accel_lines": result.accel_lines, "accel_override_lines": result.override_lines,
                **({"executed": executed} if executed is not None else {}),
                **{k: info[k] for k in ("optimizer", "window_status", "fallback_windows",
                                         "relaxed_windows", "relaxed_samples", "rounds",
@@ -362,7 +376,7 @@ def optimize_file(in_path, out_path, profile, opts: Options, progress=None) -> R
                                     for a, t in info["accel_search"]]}
                   if info.get("accel_search") else {})})
     rep.extra["time_split_s"] = time_split(
-        fw_in=fw_in, fw_in_raised=fw_in_raised, t_in=t_in, fw_out=fw_in if keep else fw_out,
+        fw_in=fw_in, fw_in_raised=fw_in_plan, t_in=t_in, fw_out=fw_in if keep else fw_out,
         plan_s=sched.duration_s, kinematic_s=_kinematic_time(sched, path, profile, opts,
                                                              fw_limits), keep=keep)
     if info.get("accel_chosen_mm_s2") and not keep:
@@ -385,6 +399,18 @@ def optimize_file(in_path, out_path, profile, opts: Options, progress=None) -> R
                          f"{conf} mm/s²) and the configured values again after its last; the "
                          f"input alone would take {fw_in_raised:.1f} s at those limits, "
                          f"{fw_in:.1f} s as configured")
+    if override is not None and not keep:
+        fw_o = profile.firmware
+        kinds = sorted({name for _, name in override.sources})
+        n_src = len(override.sources)
+        rep.notes.append(
+            f"--accel plan: {n_src} line{'s' if n_src != 1 else ''} of the file set "
+            f"accelerations below the plan's ({', '.join(kinds)}); after each (after the homing "
+            f"that follows it, if any) the file sets the plan's again "
+            f"({_accel_text(override, fw_o.flavour)}; {result.override_lines} lines, junction "
+            f"settings and retraction accelerations kept), and the file's own after the last "
+            f"move; the input alone would take {fw_in_plan:.1f} s at the plan's accelerations; "
+            "--accel file keeps the file's")
     rate = 1.0 / profile.ts_s
     if opts.mode == "sampled" and rate > profile.firmware.max_lines_per_s and not keep:
         rep.notes.append(
@@ -420,6 +446,14 @@ def optimize_file(in_path, out_path, profile, opts: Options, progress=None) -> R
     return rep
 
 
+def _accel_text(ov, flavour: str) -> str:
+    """The plan's accelerations an override sets, as a person reads them."""
+    if flavour == "klipper":
+        return f"ACCEL {ov.accel_print_mm_s2:g} mm/s²"
+    return (f"M204 P{ov.accel_print_mm_s2:g} T{ov.accel_travel_mm_s2:g}, M201 "
+            f"X{ov.max_accel_xy_mm_s2[0]:g} Y{ov.max_accel_xy_mm_s2[1]:g} mm/s²")
+
+
 def _kinematic_time(sched, path, profile, opts: Options, fw_limits) -> float:
     """The firmware's own plan of the path under the run's speed policy and limits, s: the
     plan itself for ``kinematic``, what the offline optimizer measured it at, else planned."""
@@ -440,7 +474,9 @@ def time_split(*, fw_in: float, fw_in_raised: float, t_in: float, fw_out: float,
     """Where the time went, s (negative: saved), summing to output − input exactly:
 
     - ``limits``: the original run at the plan's limits instead of as the printer is
-      configured (the acceleration and maxima our file sets before its first move);
+      configured (the acceleration and maxima our file sets before its first move) and, under
+      ``--accel plan``, at the plan's accelerations instead of the file's own lower ones
+      (``fw_in_raised``: the input timed so);
     - ``feed``: the firmware's plan under the speed policy against the slicer's feeds (0 under
       ``--speed slicer``, where no move is faster than sliced);
     - ``junctions``: 0: the plan keeps the firmware's own junction rule (junction deviation,

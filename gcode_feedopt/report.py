@@ -37,6 +37,9 @@ class Report:
     time_source: str
     #: speed policy (plan.speed): ``slicer`` — no move above its sliced F — or ``machine``
     speed: str = "slicer"
+    #: acceleration policy (vm.firmware.ACCELS): ``plan`` — the plan's accelerations override
+    #: lower ones the file sets — or ``file``
+    accel: str = "plan"
     dry_run: bool = False
     predicted_max_contour_error_mm: float | None = None
     predicted_p95_contour_error_mm: float | None = None
@@ -64,7 +67,10 @@ class Report:
                  f"({self.saved_pct:+.1f} % saved; {self.time_source})",
                  f"  method {self.method}, machine {self.machine}, speed {self.speed}"
                  f"{' (no move above its sliced F)' if self.speed == 'slicer' else ''}, "
-                 f"{self.moves_changed} of "
+                 f"accel {self.accel}"
+                 + (" (the plan's accelerations over the file's)" if self.accel == "plan"
+                    else " (the file's own accelerations kept)")
+                 + f", {self.moves_changed} of "
                  f"{self.moves} moves re-timed, {self.lines_written} lines written"
                  + (" (dry run: nothing written)" if self.dry_run else "")]
         if self.predicted_max_contour_error_mm is not None:
@@ -85,8 +91,10 @@ class Report:
         sp = (self.extra or {}).get("time_split_s")
         if sp and any(abs(v) >= 0.05 for v in sp.values()):
             lines.append(
-                f"  where the time went (s; − saved): limits {sp['limits']:+.1f} (as configured → "
-                f"the plan's), feed {sp['feed']:+.1f}"
+                f"  where the time went (s; − saved): limits {sp['limits']:+.1f} (as configured"
+                + (", the file's accelerations" if (self.extra or {}).get(
+                    "accel_override_lines") else "")
+                + f" → the plan's), feed {sp['feed']:+.1f}"
                 + (" (--speed machine)" if self.speed == "machine" else " (sliced F kept)")
                 + f", junctions {sp['junctions']:+.1f} (the firmware's rule kept), twin "
                 f"{sp['twin']:+.1f} (slow-downs where the tolerance needs them), firmware vs "

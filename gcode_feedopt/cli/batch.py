@@ -14,7 +14,9 @@ from ..plan.speed import SPEEDS
 from ..procs import signal_name
 from ..profile import load_profile
 from ..gcode.features import parse_feature_tolerance
-from .options import AMAX, FEATURE_TOLERANCE_HELP, STRINGENCY, TOLERANCE, VMAX, speed_policy
+from ..vm.firmware import ACCELS
+from .options import (ACCEL_HELP, AMAX, FEATURE_TOLERANCE_HELP, STRINGENCY, TOLERANCE, VMAX,
+                      speed_policy)
 
 
 @click.command("batch")
@@ -40,6 +42,9 @@ from .options import AMAX, FEATURE_TOLERANCE_HELP, STRINGENCY, TOLERANCE, VMAX, 
               help="As for optimize (slicer: no move faster than its sliced F).")
 @click.option("--use-slicer-feed", is_flag=True, hidden=True,
               help="Old name of --speed slicer (now the default).")
+@click.option("--accel", type=click.Choice(ACCELS), default=ACCELS[0], show_default=True,
+              help="As for optimize (" + ACCEL_HELP.split(":")[0] + ": the plan's accelerations "
+                   "over the file's lower ones; file: the file's kept).")
 @click.option("--allow-slower", is_flag=True,
               help="As for optimize (by default a file our plan would slow down is kept).")
 @click.option("--force", is_flag=True, help="Process files that were processed before.")
@@ -47,12 +52,13 @@ from .options import AMAX, FEATURE_TOLERANCE_HELP, STRINGENCY, TOLERANCE, VMAX, 
               metavar="DIR", help="Write each file's JSON report (as optimize --report) to "
                                   "DIR/<name>.json; DIR is created if its parent exists.")
 def batch(folder, outdir, jobs, machine, method, tolerance, feature_tolerance, stringency, vmax,
-          amax, mode, speed, use_slicer_feed, allow_slower, force, report_dir):
+          amax, mode, speed, use_slicer_feed, accel, allow_slower, force, report_dir):
     """Optimize every G-code file in FOLDER; print a summary table; exit 1 if any failed."""
     load_profile(machine)  # a bad machine fails once, here, not once per file
     opts = {"method": method, "tolerance_mm": tolerance, "stringency": stringency,
             "vmax_mm_s": vmax, "amax_mm_s2": amax, "mode": mode,
-            "speed": speed_policy(speed, use_slicer_feed), "allow_slower": allow_slower,
+            "speed": speed_policy(speed, use_slicer_feed), "accel": accel,
+            "allow_slower": allow_slower,
             "force": force}
     ft = parse_feature_tolerance(feature_tolerance)
     if ft is not None:  # only when given: batch's settings record stays as it was

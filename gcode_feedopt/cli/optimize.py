@@ -14,8 +14,9 @@ from ..outputs import write_text
 from ..pipeline import METHODS, Options, check_run_outputs, optimize_file
 from ..profile import load_profile
 from ..plan.speed import SPEEDS
-from .options import (AMAX, FEATURE_TOLERANCE_HELP, STRINGENCY, TOLERANCE, VMAX, Progress,
-                      profile_files, speed_policy)
+from ..vm.firmware import ACCELS
+from .options import (ACCEL_HELP, AMAX, FEATURE_TOLERANCE_HELP, STRINGENCY, TOLERANCE, VMAX,
+                      Progress, profile_files, speed_policy)
 
 
 @click.command("optimize")
@@ -47,6 +48,8 @@ from .options import (AMAX, FEATURE_TOLERANCE_HELP, STRINGENCY, TOLERANCE, VMAX,
                    "volumetric limit kept.")
 @click.option("--use-slicer-feed", is_flag=True, hidden=True,
               help="Old name of --speed slicer (now the default).")
+@click.option("--accel", type=click.Choice(ACCELS), default=ACCELS[0], show_default=True,
+              help=ACCEL_HELP)
 @click.option("--allow-slower", is_flag=True,
               help="Write the output even when the firmware would run it slower than the "
                    "input (by default the input is kept as it was, and the summary says why).")
@@ -60,7 +63,7 @@ from .options import (AMAX, FEATURE_TOLERANCE_HELP, STRINGENCY, TOLERANCE, VMAX,
 @click.option("--force", is_flag=True, help="Process a file that was processed before.")
 @click.option("--quiet", "-q", is_flag=True, help="No summary on stderr.")
 def optimize(gcode, output, machine, method, tolerance, feature_tolerance, stringency, vmax,
-             amax, mode, speed, use_slicer_feed, allow_slower, trajectory, report_path,
+             amax, mode, speed, use_slicer_feed, accel, allow_slower, trajectory, report_path,
              plot_path, dry_run, force, quiet):
     """Re-time GCODE for MACHINE and write it (in place without -o)."""
     in_slicer = prusaslicer.running_in_slicer()
@@ -68,7 +71,7 @@ def optimize(gcode, output, machine, method, tolerance, feature_tolerance, strin
         _run(gcode, output, machine, method, tolerance, stringency, vmax, amax, mode,
              speed_policy(speed, use_slicer_feed), allow_slower, trajectory, report_path,
              plot_path, dry_run, force, quiet, in_slicer,
-             parse_feature_tolerance(feature_tolerance))
+             parse_feature_tolerance(feature_tolerance), accel)
     except FeedOptError as exc:
         if in_slicer:  # stderr is lost on Windows: leave the reason beside the G-code
             log = prusaslicer.write_failure_log(gcode, str(exc))
@@ -79,9 +82,10 @@ def optimize(gcode, output, machine, method, tolerance, feature_tolerance, strin
 
 def _run(gcode, output, machine, method, tolerance, stringency, vmax, amax, mode,
          speed, allow_slower, trajectory, report_path, plot_path, dry_run, force, quiet,
-         in_slicer, feature_tolerance=None):
+         in_slicer, feature_tolerance=None, accel=ACCELS[0]):
     opts = Options(method=method, tolerance_mm=tolerance, stringency=stringency, vmax_mm_s=vmax,
-                   amax_mm_s2=amax, mode=mode, speed=speed, allow_slower=allow_slower, force=force,
+                   amax_mm_s2=amax, mode=mode, speed=speed, accel=accel,
+                   allow_slower=allow_slower, force=force,
                    dry_run=dry_run, trajectory=trajectory, plot=plot_path,
                    feature_tolerance=feature_tolerance)
     profile = load_profile(machine)

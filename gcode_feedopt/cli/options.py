@@ -93,6 +93,15 @@ def speed_policy(speed: str, use_slicer_feed: bool) -> str:
     return "slicer" if use_slicer_feed else speed
 
 
+#: --accel on optimize and batch (the PrusaSlicer hook and the Cura script run optimize with
+#: its default)
+ACCEL_HELP = ("plan: the plan's accelerations (the profile's hardware limits, lowered by the twin "
+              "where the tolerance needs it) override lower ones the file sets (M204 P/T/S, M201 "
+              "X/Y, SET_VELOCITY_LIMIT ACCEL): a line after each sets the plan's again; junction "
+              "settings (M205, square corner velocity) and retraction accelerations stay the "
+              "file's. file: the file's own accelerations are kept.")
+
+
 #: --feature-tolerance on optimize and batch (parsed in the command: a bad value is a
 #: one-line error, exit 2)
 FEATURE_TOLERANCE_HELP = (

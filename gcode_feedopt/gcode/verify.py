@@ -7,8 +7,9 @@ checked against the input:
 2. the extrusion of every original move equals the sum over its sub-moves within 1e-6 mm;
 3. every original move still ends at its original coordinates (1e-9 mm) — so the part is the
    same part; no line we added other than the re-timed pieces moves the machine, and the
-   acceleration lines (around slowed stretches, and the plan's limits where the file's are
-   higher) are M201 / M204 / M205 / SET_VELOCITY_LIMIT only;
+   acceleration lines (around slowed stretches, the plan's limits where the file's are
+   higher or the printer is configured lower, the plan's accelerations after the file's lines
+   that lower them under ``--accel plan``) are M201 / M204 / M205 / SET_VELOCITY_LIMIT only;
 4. the output has exactly one more ident line than the input.
 
 Any failure raises VerifyError and nothing is written.

@@ -18,6 +18,10 @@ end: the firmware then runs the plan itself, one line per run, instead of a stai
 values at full acceleration (which runs ~2 % slower than planned, with the acceleration bursts
 the plan avoided).
 
+Under ``--accel plan`` (vm.firmware.accel_override) the plan runs at its own accelerations where
+the file sets lower ones: right after each such line of the file (after the homing that follows
+it, if any) one line sets the plan's again, and after the last move the file's own come back.
+
 *sampled* (``mode="sampled"``): one G1 per Ts of the plan; a header comment states Ts.
 
 Every other line passes through byte for byte. The writer returns, with the bytes, a tag for
@@ -34,6 +38,7 @@ import numpy as np
 
 from .. import __version__
 from ..plan.schedule import Schedule
+from ..vm.firmware import override_restore_texts
 from .metadata import MetadataUpdater
 from .path import SEG_LINE, Path
 from .reader import IDENT_PREFIX, Program
@@ -74,6 +79,10 @@ class WriteResult:
     accel_lines: int = 0
     #: the lines that set the plan's limits on a printer configured lower (``_PlanLimits``)
     plan_limit_lines: tuple = ()
+    #: lines re-setting the plan's acceleration after the file's lines that lower it, and
+    #: giving the file's own back after the last move (``--accel plan``, vm.firmware
+    #: .AccelOverride)
+    override_lines: int = 0
 
 
 def _ending(line: bytes) -> bytes:
@@ -816,7 +825,7 @@ def _time_at(s, ts, level):
 def write(program: Program, path: Path, schedule: Schedule, profile, *, mode: str = "refeed",
           accel_mm_s2: np.ndarray | None = None, fast: bool = True, cells: dict | None = None,
           settings=None, clamp=None, feed_cap_mm_s: np.ndarray | None = None,
-          run_settings: str = "") -> WriteResult:
+          run_settings: str = "", override=None) -> WriteResult:
     """Write the re-timed G-code (see module docstring).
 
     ``cells`` (a slow-down plan's ``info["cells"]``: ``s0_mm`` (C+1,), ``scale`` (C,),
@@ -835,6 +844,13 @@ def write(program: Program, path: Path, schedule: Schedule, profile, *, mode: st
     ``accel_mm_s2``: (N,) the acceleration the firmware will use on each segment; where the
     plan follows the firmware's own trapezoid, one line with F = the plan's peak speed
     reproduces it, so no extra lines are written.
+
+    ``override`` (vm.firmware.accel_override, ``--accel plan``): right after each line of the
+    file that sets an acceleration below the plan's (or after the homing that follows it), a
+    line setting the plan's value again (Marlin ``M204 P.. T..`` / ``M201 X.. Y..``, Klipper
+    ``SET_VELOCITY_LIMIT ACCEL=..``, with a ``; gcode-feedopt:`` comment); after the last move
+    the file's own values in force there. ``settings`` and ``clamp`` are then those the
+    override leaves in force, so slowed stretches and clamps restore the plan's values.
 
     ``run_settings``: what the run was made with, recorded in brackets on the ident line
     (pipeline.run_settings: ``batch`` re-processes an output whose settings differ).
@@ -896,6 +912,8 @@ def write(program: Program, path: Path, schedule: Schedule, profile, *, mode: st
         fw_conf.configured_accel_mm_s2 is not None or fw_conf.configured_max_accel_mm_s2 is not None)
         else None)
     last_move = -1  # the last move (for the plan limits' restore)
+    ov_lines = override.lines if override is not None else {}
+    n_override = 0
 
     out: list[bytes] = []
     tags: list = []
@@ -1035,6 +1053,12 @@ def write(program: Program, path: Path, schedule: Schedule, profile, *, mode: st
         else:
             out.append(raw)
             tags.append((T_ORIG, i))
+        if i in ov_lines and _ending(raw):
+            # the file lowers an acceleration below the plan's: the plan's again
+            for text in ov_lines[i]:
+                out.append(text.encode() + _OVERRIDE_WHY + _ending(raw))
+                tags.append((T_ACCEL, -1))
+            n_override += len(ov_lines[i])
         f_word = _feed_only(raw)
         if f_word is not None:
             cur_feed = orig_feed = f_word
@@ -1056,16 +1080,19 @@ def write(program: Program, path: Path, schedule: Schedule, profile, *, mode: st
         out[last_new:last_new] = lines
         tags[last_new:last_new] = [(T_ACCEL, -1)] * len(lines)
         accel_lines += acc_state.lines
+    if override is not None and override.restore and last_move >= 0:
+        # the file's own accelerations back after the last motion line and what restores the
+        # slowed stretches' settings and the clamp there
+        at = _after_last_move(tags, last_move, moves[last_move].line_no)
+        lines = [t.encode() + _RESTORE_WHY + first_ending for t in override_restore_texts(override)]
+        out[at:at] = lines
+        tags[at:at] = [(T_ACCEL, -1)] * len(lines)
+        n_override += len(lines)
+    accel_lines += n_override
     if plan_limits is not None and plan_limits.done and last_move >= 0:
         # the printer's configured limits back after the last motion line and what restores
         # the file's own and the slowed stretches' settings there
-        last_line = moves[last_move].line_no
-        at = len(tags)
-        while at > 0 and not (tags[at - 1] == (T_NEW, last_move)
-                              or tags[at - 1] == (T_ORIG, last_line)):
-            at -= 1
-        while at < len(tags) and tags[at] == (T_ACCEL, -1):
-            at += 1
+        at = _after_last_move(tags, last_move, moves[last_move].line_no)
         lines = plan_limits.restore(first_ending)
         out[at:at] = lines
         tags[at:at] = [(T_ACCEL, -1)] * len(lines)
@@ -1073,7 +1100,23 @@ def write(program: Program, path: Path, schedule: Schedule, profile, *, mode: st
     return WriteResult(data=b"".join(out), tags=tags, lines_written=len(out),
                        moves_changed=moves_changed, sub_moves=sub_moves,
                        accel_lines=accel_lines,
-                       plan_limit_lines=plan_limits.set_lines if plan_limits is not None else ())
+                       plan_limit_lines=plan_limits.set_lines if plan_limits is not None else (),
+                       override_lines=n_override)
+
+
+_OVERRIDE_WHY = b" ; gcode-feedopt: the plan's acceleration (--accel plan)"
+_RESTORE_WHY = b" ; gcode-feedopt: the file's own acceleration again"
+
+
+def _after_last_move(tags: list, last_move: int, last_line: int) -> int:
+    """Index in the output after the last motion line and the lines of ours that follow it."""
+    at = len(tags)
+    while at > 0 and not (tags[at - 1] == (T_NEW, last_move)
+                          or tags[at - 1] == (T_ORIG, last_line)):
+        at -= 1
+    while at < len(tags) and tags[at] == (T_ACCEL, -1):
+        at += 1
+    return at
 
 
 def _feed_only(raw: bytes) -> float | None:

@@ -173,6 +173,161 @@ def _apply_event_klipper(lim: _Limits, ev) -> None:
             lim.extrude_factor = f
 
 
+#: ``--accel``: ``plan`` — the plan's accelerations (the profile's, within the machine's hardware
+#: limits) override lower ones the file sets; ``file`` — the file's own are kept
+ACCELS = ("plan", "file")
+
+#: commands that home or probe: a file lowers the acceleration for them on purpose (PrusaSlicer's
+#: MINI start block: ``M204 T1250`` before G28/G29, sensorless homing), so a lowering followed
+#: by one of them before the next move is kept
+_HOMING = frozenset({"G28", "G29", "G30", "G34", "M48", "BED_MESH_CALIBRATE", "PROBE",
+                     "QUAD_GANTRY_LEVEL", "Z_TILT_ADJUST", "SCREWS_TILT_CALCULATE"})
+
+
+@dataclass(frozen=True)
+class AccelOverride:
+    """The plan's accelerations over the file's (``--accel plan``), for one program.
+
+    ``events``: event index -> {field: the plan's value} for every line of the file that sets
+    an acceleration below the plan's (fields of ``_Limits``: ``accel_print`` (M204 P, S),
+    ``accel_travel`` (M204 T, S), ``x``, ``y`` (M201 X Y); Klipper's one accel is both
+    accels), keyed by the event after which they apply: the file's line itself, or the last
+    homing or probing command before the next move (the file lowers accelerations for homing on
+    purpose: those run at its values). The settings replay (``_limit_snapshots`` and the
+    references) applies them there, as the writer's lines after that line (``lines``: line
+    number -> the commands it adds) make the firmware do. ``restore``: the file's own values in force at the
+    last move where the plan's hold there, {field: value} (the writer gives them back after
+    the last move). M204 R, M201 Z and E and the junction settings (M205, square corner
+    velocity) stay the file's."""
+
+    flavour: str
+    accel_print_mm_s2: float
+    accel_travel_mm_s2: float
+    max_accel_xy_mm_s2: tuple
+    events: dict
+    lines: dict
+    restore: dict
+    #: (line number, command) of every line of the file whose acceleration is overridden
+    sources: tuple = ()
+
+    @property
+    def n_lines(self) -> int:
+        return sum(len(v) for v in self.lines.values())
+
+
+def plan_accels(profile) -> tuple[float, float, tuple]:
+    """(M204 P, M204 T, (M201 X, Y)) the plan runs at: the profile's firmware values within the
+    machine's hardware limits (``limits.amax_mm_s2``, ``limits.axis_amax_mm_s2``); Klipper's
+    one accel within both axes' limits."""
+    fw, lim = profile.firmware, profile.limits
+    xy = tuple(min(lim.axis_amax_mm_s2[a], lim.amax_mm_s2, fw.max_accel_mm_s2[a]) for a in "xy")
+    if fw.flavour == "klipper":
+        a = min(fw.accel_mm_s2, *xy)
+        return a, a, xy
+    return min(fw.accel_mm_s2, lim.amax_mm_s2), min(fw.travel_accel_mm_s2, lim.amax_mm_s2), xy
+
+
+def _lowered(ev, plan: dict, klipper: bool) -> dict:
+    """{field: the plan's value} of the accelerations ``ev`` sets below the plan's."""
+    p, n = ev.params, ev.name
+    vals = {}
+    if klipper:
+        a = _klipper_accel_set(ev)
+        if a is not None:
+            vals = {"accel_print": a, "accel_travel": a}
+    elif n == "M204":
+        for key, fields in (("S", ("accel_print", "accel_travel")), ("P", ("accel_print",)),
+                            ("T", ("accel_travel",))):
+            if isinstance(p.get(key), float):
+                vals.update({f: p[key] for f in fields})
+    elif n == "M201":
+        vals = {L.lower(): p[L] for L in "XY" if isinstance(p.get(L), float)}
+    elif n == "SET_VELOCITY_LIMIT" and isinstance(p.get("ACCEL"), float):
+        vals = {"accel_print": p["ACCEL"], "accel_travel": p["ACCEL"]}
+    return {f: plan[f] for f, v in vals.items() if v < plan[f]}
+
+
+def _set_fields(lim: _Limits, fields: dict) -> None:
+    for f, v in fields.items():
+        if f in ("x", "y"):
+            lim.max_accel[f] = v
+        else:
+            setattr(lim, f, v)
+
+
+def accel_override(program, profile, policy: str = "plan") -> AccelOverride | None:
+    """:class:`AccelOverride` of ``program`` under ``policy`` (:data:`ACCELS`), or None: the
+    file's own accelerations hold (``file``, or no line of the file sets one below the plan's
+    before a move)."""
+    if policy not in ACCELS:
+        raise ValueError(f"unknown acceleration policy {policy!r}; use one of {', '.join(ACCELS)}")
+    if policy == "file" or not program.moves:
+        return None
+    klipper = profile.firmware.flavour == "klipper"
+    ap, at, (ax, ay) = plan_accels(profile)
+    plan = {"accel_print": ap, "accel_travel": at, "x": ax, "y": ay}
+    events = program.events
+    move_lines = {mv.line_no for mv in program.moves}
+    over, sources = {}, []
+    for k, ev in enumerate(events):
+        if ev.move_index >= len(program.moves) or ev.line_no in move_lines:
+            continue  # after the last move (the end block's own), or on a motion line
+        f = _lowered(ev, plan, klipper)
+        if not f:
+            continue
+        # homing or probing before the next move runs at the file's value: ours after it
+        place = k
+        j = k + 1
+        while j < len(events) and events[j].move_index == ev.move_index:
+            if events[j].name in _HOMING:
+                place = j
+            j += 1
+        over.setdefault(place, {}).update(f)
+        sources.append((ev.line_no, ev.name))
+    lines = {}
+    for k, f in over.items():
+        lines.setdefault(events[k].line_no, []).extend(_override_texts(f, klipper))
+    if not over:
+        return None
+    ov = AccelOverride("klipper" if klipper else "marlin", ap, at, (ax, ay), over, lines, {},
+                       tuple(sources))
+    # what the file has in force at the last move, where ours hold
+    raw, _ = _limit_snapshots(program, profile, klipper)
+    mine, si = _limit_snapshots(program, profile, klipper, ov)
+    last = int(si[-1])
+    restore = {}
+    for f in ("accel_print", "accel_travel", "x", "y"):
+        get = (lambda q: q.max_accel[f]) if f in ("x", "y") else (lambda q: getattr(q, f))
+        if get(raw[last]) != get(mine[last]):
+            restore[f] = get(raw[last])
+    return dataclasses.replace(ov, restore=restore)
+
+
+def _override_texts(fields: dict, klipper: bool) -> list[str]:
+    """The commands that set ``fields`` ({field: value}, :class:`AccelOverride`): Marlin
+    ``M204 P.. T..`` and ``M201 X.. Y..`` (those of them it sets), Klipper
+    ``SET_VELOCITY_LIMIT ACCEL=..``."""
+    def g(v):
+        return f"{v:.3f}".rstrip("0").rstrip(".")
+    if klipper:
+        return [f"SET_VELOCITY_LIMIT ACCEL={g(fields.get('accel_print', fields.get('accel_travel')))}"]
+    out = []
+    pt = [f"{L}{g(fields[f])}" for L, f in (("P", "accel_print"), ("T", "accel_travel"))
+          if f in fields]
+    if pt:
+        out.append("M204 " + " ".join(pt))
+    xy = [f"{L}{g(fields[L.lower()])}" for L in "XY" if L.lower() in fields]
+    if xy:
+        out.append("M201 " + " ".join(xy))
+    return out
+
+
+def override_restore_texts(ov: AccelOverride) -> list[str]:
+    """The commands that give the file's own values back after the last move
+    (``ov.restore``)."""
+    return _override_texts(ov.restore, ov.flavour == "klipper") if ov.restore else []
+
+
 @dataclass(frozen=True)
 class Blocks:
     """The firmware's planner blocks (N): straight pieces in XYZ+E.
@@ -231,16 +386,18 @@ class MoveLimits:
     extrude_factor: np.ndarray | None = None
 
 
-def move_limits(program, profile, fast: bool = True) -> MoveLimits:
+def move_limits(program, profile, fast: bool = True,
+                override: AccelOverride | None = None) -> MoveLimits:
     """What the firmware will allow for each move, honouring the settings found in the file, so
     a planner can stay within them (the firmware would otherwise run our plan slower).
 
     ``fast``: the limits looked up per move from one snapshot per event (bit-identical to
-    ``False``, the reference that applies the events move by move)."""
+    ``False``, the reference that applies the events move by move). ``override``
+    (:func:`accel_override`): the plan's accelerations where the file's lines lower them."""
     if not fast:
-        return _move_limits_reference(program, profile)
+        return _move_limits_reference(program, profile, override)
     klipper = profile.firmware.flavour == "klipper"
-    snaps, si = _limit_snapshots(program, profile, klipper)
+    snaps, si = _limit_snapshots(program, profile, klipper, override)
     moves = program.moves
     de = (np.array([mv.e_end_mm for mv in moves], dtype=float)
           - np.array([mv.e_start_mm for mv in moves], dtype=float))
@@ -314,12 +471,14 @@ def raises_configured(profile) -> bool:
         conf[a] < fw.max_accel_mm_s2[a] for a in ("x", "y"))
 
 
-def accel_settings(program, profile, clamp=None) -> AccelSettings:
+def accel_settings(program, profile, clamp=None,
+                   override: AccelOverride | None = None) -> AccelSettings:
     """:class:`AccelSettings` of ``program`` (the profile's, then the file's own settings); with
     a Klipper :class:`AccelClamp`, its one accel as clamped to the plan's limits (what a writer
-    restores after a slowed stretch is then the clamped value)."""
+    restores after a slowed stretch is then the clamped value); with ``override``, the plan's
+    accelerations where the file's lines lower them (what the writer's lines leave in force)."""
     klipper = profile.firmware.flavour == "klipper"
-    snaps, si = _limit_snapshots(program, profile, klipper)
+    snaps, si = _limit_snapshots(program, profile, klipper, override)
     jerk = np.array([[np.nan] * 2 if q.jerk is None or klipper else [q.jerk["x"], q.jerk["y"]]
                      for q in snaps]).reshape(-1, 2)
     acc_p = np.array([q.accel_print for q in snaps])[si]
@@ -352,11 +511,13 @@ class AccelClamp:
     epoch: np.ndarray
 
 
-def accel_clamp(program, profile, axis_amax_mm_s2: dict) -> AccelClamp | None:
+def accel_clamp(program, profile, axis_amax_mm_s2: dict,
+                override: AccelOverride | None = None) -> AccelClamp | None:
     """:class:`AccelClamp` of ``program`` under the plan's axis limits (plan.kinematic
-    .effective_limits), or None when the file's settings are never above them."""
+    .effective_limits), or None when the file's settings are never above them. The file's
+    values are those in force with ``override`` (the writer's lines over the file's)."""
     klipper = profile.firmware.flavour == "klipper"
-    snaps, si = _limit_snapshots(program, profile, klipper)
+    snaps, si = _limit_snapshots(program, profile, klipper, override)
     if klipper:
         file = np.array([[q.accel_print] for q in snaps], dtype=float).reshape(-1, 1)
         cap = np.array([min(axis_amax_mm_s2["x"], axis_amax_mm_s2["y"])])
@@ -375,14 +536,18 @@ def accel_clamp(program, profile, axis_amax_mm_s2: dict) -> AccelClamp | None:
                       epoch)
 
 
-def _limit_snapshots(program, profile, klipper: bool):
+def _limit_snapshots(program, profile, klipper: bool, override: AccelOverride | None = None):
     """The limits in force after each event (``snaps``: E+1, the first before any event) and,
     (M,) per move, the index of the snapshot in force at it (after every event read before
-    it). The file sets limits a few thousand times at most; a move looks its limits up."""
+    it). The file sets limits a few thousand times at most; a move looks its limits up.
+    ``override``: the plan's accelerations over the file's lines that lower them."""
     lim = _initial(profile)
     snaps = [_snapshot(lim)]
-    for ev in program.events:
+    over = override.events if override is not None else {}
+    for k, ev in enumerate(program.events):
         _apply_event(lim, ev, klipper)
+        if k in over:
+            _set_fields(lim, over[k])
         snaps.append(_snapshot(lim))
     ev_mi = np.array([ev.move_index for ev in program.events], dtype=np.int64)
     si = np.searchsorted(ev_mi, np.arange(len(program.moves)), side="right")
@@ -396,11 +561,12 @@ def _snapshot(lim: _Limits) -> _Limits:
                    lim.extrude_factor)
 
 
-def _move_limits_reference(program, profile) -> MoveLimits:
+def _move_limits_reference(program, profile, override=None) -> MoveLimits:
     """:func:`move_limits` move by move."""
     klipper = profile.firmware.flavour == "klipper"
     lim = _initial(profile)
     events = program.events
+    over = override.events if override is not None else {}
     ei = 0
     m = len(program.moves)
     acc = np.empty(m)
@@ -416,6 +582,8 @@ def _move_limits_reference(program, profile) -> MoveLimits:
     for mi, mv in enumerate(program.moves):
         while ei < len(events) and events[ei].move_index <= mi:
             _apply_event(lim, events[ei], klipper)
+            if ei in over:
+                _set_fields(lim, over[ei])
             ei += 1
         a = lim.accel_print if mv.de_mm > 0 else lim.accel_travel
         acc[mi] = a
@@ -474,23 +642,27 @@ def _klipper_e_only(lim: _Limits, de: float, feed: float):
             lim.scv ** 2 * _SCV_JD / lim.accel_print)
 
 
-def build_blocks(program, profile, fast: bool = True) -> Blocks:
+def build_blocks(program, profile, fast: bool = True,
+                 override: AccelOverride | None = None) -> Blocks:
     """Split the program into the firmware's planner blocks with the limits in force.
 
     ``fast``: straight moves as arrays (:func:`_build_blocks_fast`); ``False``: every move
     one by one (:func:`_build_blocks_reference`, the reference the fast path is tested against:
-    the same blocks, bit for bit)."""
+    the same blocks, bit for bit). ``override`` (:func:`accel_override`): the program as if
+    each file line lowering an acceleration were followed by the writer's line raising it (the
+    input timed at the plan's accelerations)."""
     if fast:
-        return _build_blocks_fast(program, profile)
-    return _build_blocks_reference(program, profile)
+        return _build_blocks_fast(program, profile, override)
+    return _build_blocks_reference(program, profile, override)
 
 
-def _build_blocks_reference(program, profile) -> Blocks:
+def _build_blocks_reference(program, profile, override=None) -> Blocks:
     """:func:`build_blocks` move by move."""
     fw = profile.firmware
     klipper = fw.flavour == "klipper"
     lim = _initial(profile)
     events = program.events
+    over = override.events if override is not None else {}
     ei = 0
     rows = []  # (start, end, e0, de, L, accel, peak_accel, vcap, jd, eonly)
     stop_idx: dict[int, float] = {}
@@ -508,6 +680,8 @@ def _build_blocks_reference(program, profile) -> Blocks:
         while ei < len(events) and events[ei].move_index <= mi:
             ev = events[ei]
             _apply_event(lim, ev, klipper)
+            if ei in over:
+                _set_fields(lim, over[ei])
             if ev.stop:
                 stop(ev.dwell_s)
             ei += 1
@@ -678,7 +852,7 @@ def _arc_rows(mv, lim: _Limits, fw, klipper: bool, feed: float):
     return rows
 
 
-def _build_blocks_fast(program, profile) -> Blocks:
+def _build_blocks_fast(program, profile, override=None) -> Blocks:
     """:func:`build_blocks` with straight moves as arrays.
 
     The limits in force are taken once per event (a snapshot after each) and looked up per
@@ -690,7 +864,7 @@ def _build_blocks_fast(program, profile) -> Blocks:
     moves = program.moves
     events = program.events
     m = len(moves)
-    snaps, si = _limit_snapshots(program, profile, klipper)
+    snaps, si = _limit_snapshots(program, profile, klipper, override)
     macc = np.array([[q.max_accel[k] for k in "xyze"] for q in snaps])[si]
     mfeed = np.array([[q.max_feed[k] for k in "xyze"] for q in snaps])[si]
     start = np.array([mv.start_mm for mv in moves], dtype=float).reshape(m, 3)
@@ -710,7 +884,7 @@ def _build_blocks_fast(program, profile) -> Blocks:
         q = snaps[si[mi]]
         rows = _arc_rows(moves[mi], q, fw, klipper, float(feed[mi]))
         if rows is None:
-            return _build_blocks_reference(program, profile)
+            return _build_blocks_reference(program, profile, override)
         arc_rows[int(mi)] = rows
     count = (line | eonly).astype(np.int64)
     for mi, rows in arc_rows.items():
@@ -897,10 +1071,11 @@ def _plan(blocks: Blocks):
                       blocks.lead_s)
 
 
-def estimate_time_s(program, profile, fast: bool = True) -> float:
+def estimate_time_s(program, profile, fast: bool = True,
+                    override: AccelOverride | None = None) -> float:
     """Print time as the firmware model executes the program (no sampling), s.
-    ``fast``: see :func:`build_blocks`."""
-    blocks = build_blocks(program, profile, fast)
+    ``fast``, ``override``: see :func:`build_blocks`."""
+    blocks = build_blocks(program, profile, fast, override)
     if blocks.length_mm.size == 0:
         return blocks.lead_s
     return _plan(blocks).duration_s

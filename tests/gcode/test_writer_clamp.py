@@ -74,11 +74,20 @@ def test_file_setting_higher_limits_is_followed_by_ours(tmp_path):
     """The file raises M201 (a Prusa start block: Z400) before its moves and again mid-file:
     our line follows each, and the Z hop runs at the profile's Z limit as planned."""
     head = ["M201 X2500 Y2500 Z400 E5000"]
-    rep, data = run(tmp_path, part(head, mid=["M201 X2500 Y2500 Z400 E5000"]), MARLIN)
+    rep, data = run(tmp_path, part(head, mid=["M201 X2500 Y2500 Z400 E5000"]), MARLIN,
+                    accel="file")
     lines = [ln for _, ln in accel_lines(data, b"M201 ")]
     assert lines == [b"M201 X2500 Y2500 Z400 E5000", b"M201 X2500 Y2500 Z100",
                      b"M201 X2500 Y2500 Z400 E5000", b"M201 X2500 Y2500 Z100",
                      b"M201 X2500 Y2500 Z400"]
+    assert rep.output_time_s == pytest.approx(rep.plan_time_s, rel=1e-3)
+    # --accel plan (the default): the file's X/Y 2500 give way to the plan's 3000 (our line
+    # after each of its M201), the clamp then holds Z; the file's own X/Y back at the end
+    rep, data = run(tmp_path, part(head, mid=["M201 X2500 Y2500 Z400 E5000"]), MARLIN)
+    lines = [ln.split(b" ;")[0] for _, ln in accel_lines(data, b"M201 ")]
+    assert lines == [b"M201 X2500 Y2500 Z400 E5000", b"M201 X3000 Y3000", b"M201 X3000 Y3000 Z100",
+                     b"M201 X2500 Y2500 Z400 E5000", b"M201 X3000 Y3000", b"M201 X3000 Y3000 Z100",
+                     b"M201 X3000 Y3000 Z400", b"M201 X2500 Y2500"]
     assert rep.output_time_s == pytest.approx(rep.plan_time_s, rel=1e-3)
 
 
@@ -87,9 +96,14 @@ def test_no_lines_when_the_file_is_within_the_plan(tmp_path):
     prog = read_program(data, "p")
     axis_a = {"x": 3000.0, "y": 3000.0, "z": 100.0}
     assert firmware.accel_clamp(prog, MARLIN, axis_a) is None
-    rep, out = run(tmp_path, data, MARLIN)
+    rep, out = run(tmp_path, data, MARLIN, accel="file")
     assert [ln for _, ln in accel_lines(out, b"M201 ")] == [b"M201 X1500 Y1500 Z50"]
     assert rep.extra["accel_lines"] == 0
+    # --accel plan: no clamp either, but the file's X/Y 1500 give way to the plan's 3000
+    rep, out = run(tmp_path, data, MARLIN)
+    assert [ln.split(b" ;")[0] for _, ln in accel_lines(out, b"M201 ")] == [
+        b"M201 X1500 Y1500 Z50", b"M201 X3000 Y3000", b"M201 X1500 Y1500"]
+    assert rep.extra["accel_lines"] == rep.extra["accel_override_lines"] == 2
 
 
 def test_klipper_accel_is_clamped(tmp_path):

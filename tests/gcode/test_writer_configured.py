@@ -32,11 +32,11 @@ def stock(profile):
     return st
 
 
-def run(tmp_path, data: bytes, profile, method="kinematic"):
+def run(tmp_path, data: bytes, profile, method="kinematic", accel="plan"):
     src = tmp_path / "in.gcode"
     src.write_bytes(data)
     out = tmp_path / "out.gcode"
-    rep = optimize_file(src, out, profile, Options(method=method))
+    rep = optimize_file(src, out, profile, Options(method=method, accel=accel))
     return rep, out.read_bytes()
 
 
@@ -74,11 +74,17 @@ def test_stock_printer_runs_the_plan(tmp_path):
 
 def test_lines_carry_what_the_file_set_before_its_first_move(tmp_path):
     """A start block that sets its own M204 before moving: the line states the model's values
-    there (the file's), not the profile's."""
+    there (the file's, under ``--accel file``), not the profile's. Under ``--accel plan`` (the
+    default) the file's lower values are followed by the plan's, which the line then states."""
     src = BUTTERFLY.read_bytes().replace(b"G92 E0\n", b"G92 E0\nM204 P1500 T2500\n", 1)
-    rep, data = run(tmp_path, src, SHIPPED)
+    rep, data = run(tmp_path, src, SHIPPED, accel="file")
     assert [ln.split(b" ;")[0] for _, ln in ours(data)][:2] == [b"M201 X3000 Y3000",
                                                                  b"M204 P1500 R3000 T2500"]
+    t_stock = firmware.estimate_time_s(read_program(data, "out"), stock(SHIPPED))
+    assert t_stock == pytest.approx(rep.output_time_s, rel=2e-3)
+    rep, data = run(tmp_path, src, SHIPPED)
+    assert [ln.split(b" ;")[0] for _, ln in ours(data)][:3] == [
+        b"M204 P3000 T3000", b"M201 X3000 Y3000", b"M204 P3000 R3000 T3000"]
     t_stock = firmware.estimate_time_s(read_program(data, "out"), stock(SHIPPED))
     assert t_stock == pytest.approx(rep.output_time_s, rel=2e-3)
 
