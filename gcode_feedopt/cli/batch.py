@@ -15,8 +15,7 @@ from ..procs import signal_name
 from ..profile import load_profile
 from ..gcode.features import parse_feature_tolerance
 from ..vm.firmware import ACCELS
-from .options import (ACCEL_HELP, AMAX, FEATURE_TOLERANCE_HELP, STRINGENCY, TOLERANCE, VMAX,
-                      speed_policy)
+from .options import AMAX, FEATURE_TOLERANCE_HELP, STRINGENCY, TOLERANCE, VMAX, speed_policy
 
 
 @click.command("batch")
@@ -43,8 +42,8 @@ from .options import (ACCEL_HELP, AMAX, FEATURE_TOLERANCE_HELP, STRINGENCY, TOLE
 @click.option("--use-slicer-feed", is_flag=True, hidden=True,
               help="Old name of --speed slicer (now the default).")
 @click.option("--accel", type=click.Choice(ACCELS), default=ACCELS[0], show_default=True,
-              help="As for optimize (" + ACCEL_HELP.split(":")[0] + ": the plan's accelerations "
-                   "over the file's lower ones; file: the file's kept).")
+              help="As for optimize (plan: the plan's accelerations over the file's lower "
+                   "ones; file: the file's kept).")
 @click.option("--allow-slower", is_flag=True,
               help="As for optimize (by default a file our plan would slow down is kept).")
 @click.option("--force", is_flag=True, help="Process files that were processed before.")
