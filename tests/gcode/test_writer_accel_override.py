@@ -255,3 +255,25 @@ def test_the_twin_keeps_the_tolerance_at_the_plans_accelerations(tmp_path):
     assert ex["within_fraction"] >= rep.stringency
     assert ex["time_s"] == pytest.approx(rep.plan_time_s, rel=0.015)
     assert rep.extra["accel_override_lines"] == 101
+
+
+def test_which_lines_lower_and_what_we_write():
+    """Marlin ``M204 S`` sets P and T; only what a line sets below the plan's is re-set;
+    a lowering before homing gets our line after the homing; none after the last move."""
+    profile = load_profile("ender3pro")  # plan: P 3000, T 3000, M201 X/Y 3000
+    text = "\n".join([
+        "M204 S500", "G28", "M204 P1000 T5000", "M201 X4000 Y2000 Z50", "G1 X10 Y10 F3000",
+        "M204 S4000 P2000", "G1 X20 Y10 E1 F1200", "SET_VELOCITY_LIMIT ACCEL=800",
+        "G1 X20 Y20 E2", "M204 P500", "M84", ""]).encode()
+    prog = read_program(text, "t")
+    ov = firmware.accel_override(prog, profile)
+    assert {prog.lines[k].strip(): v for k, v in ov.lines.items()} == {
+        b"G28": ["M204 P3000 T3000"], b"M204 P1000 T5000": ["M204 P3000"],
+        b"M201 X4000 Y2000 Z50": ["M201 Y3000"], b"M204 S4000 P2000": ["M204 P3000"],
+        b"SET_VELOCITY_LIMIT ACCEL=800": ["M204 P3000 T3000"]}
+    # at the last move the file has P and T 800 (SET_VELOCITY_LIMIT), Y 2000
+    assert ov.restore == {"accel_print": 800.0, "accel_travel": 800.0, "y": 2000.0}
+    lim = firmware.move_limits(prog, profile, override=ov)
+    # a higher value of the file's stays (T 5000 on the travel: M201 and the clamp cap it)
+    assert lim.accel_mm_s2.tolist() == [5000.0, 3000.0, 3000.0]
+    assert lim.max_accel_mm_s2[:, :2].tolist() == [[4000.0, 3000.0]] * 3
