@@ -411,6 +411,15 @@ def optimize_file(in_path, out_path, profile, opts: Options, progress=None) -> R
             f"settings and retraction accelerations kept), and the file's own after the last "
             f"move; the input alone would take {fw_in_plan:.1f} s at the plan's accelerations; "
             "--accel file keeps the file's")
+        tower = next((i for i, ln in enumerate(program.lines)
+                      if ln.lstrip()[:12].upper() == b"TUNING_TOWER"), None)
+        if tower is not None:
+            # a calibration print measures something at the accelerations it was sliced with
+            # (the Cura square tower: pressure advance at ACCEL=500)
+            rep.notes.append(
+                f"{in_path}:{tower + 1}: the file runs TUNING_TOWER, a calibration print, and its "
+                "accelerations were overridden; what it calibrates (e.g. pressure advance) depends "
+                "on them: run it with --accel file to calibrate at the sliced ones")
     rate = 1.0 / profile.ts_s
     if opts.mode == "sampled" and rate > profile.firmware.max_lines_per_s and not keep:
         rep.notes.append(

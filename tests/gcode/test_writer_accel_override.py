@@ -144,6 +144,10 @@ def test_square_tower_on_marlin(tmp_path):
     assert lines[k + 1] == b"M204 P3000 T3000 " + OURS
     assert [ln for ln in lines if ln.endswith(OURS)] == [lines[k + 1]]
     assert [ln for ln in lines if ln.endswith(BACK)] == [b"M204 P500 T500 " + BACK]
+    # a pressure-advance tower calibrates at the accelerations it was sliced with: said
+    assert any("TUNING_TOWER" in n and "--accel file" in n and ":13:" in n for n in rep.notes), rep.notes
+    rep_f, *_ = run(tmp_path, "cura-4.8_ender3_square-tower", "ender3pro", accel="file")
+    assert not any("TUNING_TOWER" in n for n in rep_f.notes)
 
 
 def test_klipper_set_velocity_limit(tmp_path):
