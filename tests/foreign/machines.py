@@ -363,8 +363,11 @@ def bench_a_commands() -> dict:
     return out
 
 
-def write_dataset(mach: Machine, out: pathlib.Path, *, effects: bool = True) -> dict:
-    """Write FRFs, logs and labels of ``mach`` under ``out`` (benchA's layout); return labels."""
+def write_dataset(mach: Machine, out: pathlib.Path, *, effects: bool = True,
+                  fan_hz: float | None = None) -> dict:
+    """Write FRFs, logs and labels of ``mach`` under ``out`` (benchA's layout); return labels.
+    ``fan_hz`` puts the fan (a periodic_time effect, not on a corexy) at that frequency instead
+    of the drawn one; the rest of the data set is the same."""
     rng = np.random.default_rng(10_000 + mach.seed)
     out = pathlib.Path(out)
     (out / "frf").mkdir(parents=True, exist_ok=True)
@@ -407,6 +410,7 @@ def write_dataset(mach: Machine, out: pathlib.Path, *, effects: bool = True) -> 
         oth = "y" if ax == "x" else "x"
         d = round(float(rng.uniform(2, 6)), 1) * 1e-3
         ff = round(float(rng.uniform(15, 35)), 1)
+        ff = ff if fan_hz is None else float(fan_hz)
         amp = round(float(rng.uniform(0.008, 0.02)), 4)
         g = round(1 + float(rng.choice([-1, 1])) * float(rng.uniform(0.002, 0.006)), 4)
         # a corexy's frame force would move both axes through the mismatched belts: its third
