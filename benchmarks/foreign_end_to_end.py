@@ -11,6 +11,10 @@ the twin was not built from.
 
     python benchmarks/foreign_end_to_end.py                # seeds 0-9, η 0.95
     python benchmarks/foreign_end_to_end.py --seeds 1 6 --eta 0.9 0.99 --tol 0.05
+    python benchmarks/foreign_end_to_end.py --seeds 0 --amax 3000 --tol 0.1 --prints 4
+
+``--prints N``: also print after print, each planned with the profile learned so far and its
+log ``learn``ed into it (N prints, N − 1 learned).
 """
 
 from __future__ import annotations
@@ -56,6 +60,8 @@ def main():
     ap.add_argument("--tol", type=float, default=0.05, help="E_max, mm")
     ap.add_argument("--vmax", type=float, default=150.0)
     ap.add_argument("--amax", type=float, default=5000.0)
+    ap.add_argument("--prints", type=int, default=1,
+                    help="also N prints in sequence, each learned into the profile")
     args = ap.parse_args()
     warnings.simplefilter("ignore")
     tmp = pathlib.Path(tempfile.mkdtemp(prefix="foreign-e2e-"))
@@ -85,6 +91,15 @@ def main():
                   f"{p.cycle_s / c.cycle_s:.3f} | {p.rms_gamma_um:.2f} ({lim:.2f}) | "
                   f"{p.within:.4f} | {k.within:.4f} | {q.cycle_s:.3f} | {q.rms_gamma_um:.2f} | "
                   f"{q.within:.4f} |", flush=True)
+            if args.prints > 1:
+                seq, p_k = [], prof
+                for k in range(args.prints):
+                    r = run("pidd", path, p_k, plant, args.tol, eta)
+                    seq.append(f"{r.cycle_s:.2f} s, {r.rms_gamma_um:.2f} µm, {r.within:.4f}")
+                    if k + 1 < args.prints:
+                        p_k = learned(path, p_k, plant, args.tol, eta, tmp)
+                print(f"|   | print after print (cycle, RMS γ, within): {' → '.join(seq)} |",
+                      flush=True)
 
 
 if __name__ == "__main__":
