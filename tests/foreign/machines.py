@@ -32,7 +32,12 @@ a whole number of fine steps. The sensor quantises and adds white noise. Nothing
 Effects (labels follow the project's catalogue, as benchA's): ``delay`` (motor command late),
 ``gain`` (command scaled about 0 mm), ``periodic_time`` (sinusoidal force on the frame / table,
 labelled with the resulting carriage amplitude), ``resonance_shift`` (carriage / table mass ×
-1.25–1.4, labelled with the new dominant frequency).
+1.25–1.4, labelled with the new dominant frequency). ``write_dataset(..., more_effects=True)``
+appends the drive's effects, from a random stream of their own (every other file unchanged):
+``backlash`` (a dead band between motor and belt / screw), ``periodic_position`` (an eccentric
+pulley / screw), ``friction`` (a Coulomb force on the carriage / table) and, not on a corexy,
+``cross_coupling`` (the other axis's acceleration pushing the frame / table): ``_more_effects``
+states each form and label. benchmarks/foreign_effects.py judges the diagnosis on them.
 """
 
 from __future__ import annotations
@@ -66,9 +71,11 @@ class Channel:
                 q[k] = q[k] * f
         return Channel(self.kind, q)
 
-    def ss(self):
+    def ss(self, force_on: str = "frame"):
         """(A, B, C): x' = A x + B [u, w], y = C x; u commanded position, w force on the
-        frame (belt kinds) or table (servo), N; y the sensed position. DC gain u→y is 1."""
+        frame (belt kinds) or table (servo), N; y the sensed position. DC gain u→y is 1.
+        ``force_on="carriage"``: w acts on a belt kind's carriage instead (friction); the
+        servo's force is on its table either way."""
         p = self.p
         if self.kind in ("belt_frame", "belt_hotend"):
             tau, m, k, c = p["tau"], p["m"], p["k"], p["c"]
@@ -96,7 +103,10 @@ class Channel:
             A[4, 3] += -kf / mf
             A[4, 4] += -cf / mf
             B[4, 0] += -fbu / mf
-            B[4, 1] = 1 / mf
+            if force_on == "carriage":
+                B[2, 1] = 1 / m
+            else:
+                B[4, 1] = 1 / mf
             C = np.zeros(n)
             if hot:
                 mh, kh, ch = p["mh"], p["kh"], p["ch"]
@@ -136,11 +146,20 @@ class Channel:
             return A, B, C
         raise ValueError(self.kind)
 
-    def frf(self, f_hz, inp: int = 0) -> np.ndarray:
-        A, B, C = self.ss()
+    def frf(self, f_hz, inp: int = 0, force_on: str = "frame") -> np.ndarray:
+        A, B, C = self.ss(force_on)
         s = 2j * np.pi * np.asarray(f_hz, dtype=float)
         eye = np.eye(A.shape[0])
         return np.array([C @ np.linalg.solve(si * eye - A, B[:, inp]) for si in s])
+
+    def compliance(self, force_on: str = "frame") -> float:
+        """Static displacement of the sensed position per unit force (mm per kg·mm/s², i.e.
+        1/stiffness in SI) on the frame / carriage; for the servo, of the loop without its
+        integral action (1/kp + 1/k: the integrator takes a steady force out in ~ki/kp)."""
+        if self.kind == "servo_screw":
+            return 1 / self.p["kp"] + 1 / self.p["k"]
+        A, B, C = self.ss(force_on)
+        return float(-C @ np.linalg.solve(A, B[:, 1]))
 
     def modes(self):
         """[(f_n Hz, ζ)] of the complex pole pairs, ascending."""
@@ -274,10 +293,21 @@ def axis_frf(chans: dict, axis: str, f_hz, delay_s: float) -> np.ndarray:
 
 
 def respond_xy(mach: Machine, chans: dict, x_cmd, y_cmd, ts_s: float, *, delay_s=None,
-               axis_delay=None, axis_gain=None, force=None, rng=None) -> tuple:
+               axis_delay=None, axis_gain=None, force=None, rng=None, play=None, ecc=None,
+               friction=None, frame_force=None) -> tuple:
     """Sensed (x, y) of a plant ``chans`` for the command samples; effects on the command path
     (``axis_delay`` {axis: s}, ``axis_gain`` {axis: scale}) and ``force`` {axis: (freq_hz, N,
-    phase)} on the frame / table."""
+    phase)} on the frame / table.
+
+    In the drive, on the (fine, delayed) command of an axis before it reaches the motor (a
+    corexy's: before the axis commands are mixed into its motors): ``play`` {axis: width mm}
+    (a dead band between motor and belt / screw), ``ecc`` {axis: (A mm, λ mm, φ)} (the drive
+    sees u + A sin(2π u/λ + φ): pulley / screw eccentricity). Forces: ``friction`` {axis: F}
+    a Coulomb force −F·tanh(v/0.5 mm/s) of the commanded velocity v on the carriage / table;
+    ``frame_force`` {axis: (coef, other axis, source)}: coef × the other axis's acceleration
+    (mm/s²) on the frame (belt kinds) / table (servo), source ``"command"`` (its commanded
+    acceleration) or ``"actual"`` (that of its simulated sensed position: the reaction of the
+    carriage's real motion). Not on a corexy."""
     d_all = mach.delay_s if delay_s is None else delay_s
     cmd = {"x": np.asarray(x_cmd, float), "y": np.asarray(y_cmd, float)}
     for ax, g in (axis_gain or {}).items():
@@ -292,7 +322,10 @@ def respond_xy(mach: Machine, chans: dict, x_cmd, y_cmd, ts_s: float, *, delay_s
         f, amp, ph = force[ax]
         return amp * np.sin(2 * np.pi * f * tf + ph)
 
-    if "a" in chans:
+    if play or ecc or friction or frame_force:
+        x, y = _respond_drive(chans, cmd, steps, ts_s, tf, play or {}, ecc or {},
+                              friction or {}, frame_force or {})
+    elif "a" in chans:
         # a corexy's motors: the two axes' delays apply to the axis commands before mixing
         ua = _fine(cmd["x"], steps["x"]) + _fine(cmd["y"], steps["y"])
         ub = _fine(cmd["x"], steps["x"]) - _fine(cmd["y"], steps["y"])
@@ -311,6 +344,75 @@ def respond_xy(mach: Machine, chans: dict, x_cmd, y_cmd, ts_s: float, *, delay_s
     return out[0], out[1]
 
 
+#: friction's velocity scale: sign(v) smoothed as tanh(v / V_FRICTION), mm/s
+V_FRICTION = 0.5
+
+
+def _play_op(u, width):
+    """Dead band of total width ``width``: the driven end stays put until the drive has
+    crossed the band, then trails it by width/2; starts centred."""
+    r = 0.5 * width
+    out = np.empty_like(u)
+    y = u[0]
+    for j, v in enumerate(u.tolist()):
+        if v - y > r:
+            y = v - r
+        elif y - v > r:
+            y = v + r
+        out[j] = y
+    return out
+
+
+def _respond_drive(chans, cmd, steps, ts_s, tf, play, ecc, friction, frame_force):
+    """respond_xy with the drive effects (its docstring); noise-free (x, y) at the samples."""
+    dt = ts_s / R
+    u = {}
+    for ax in "xy":
+        v = _fine(cmd[ax], steps[ax])
+        if ax in play:
+            v = _play_op(v, play[ax])
+        if ax in ecc:
+            A, lam, ph = ecc[ax]
+            v = v + A * np.sin(2 * np.pi * v / lam + ph)
+        u[ax] = v
+
+    def coulomb(ax):
+        # the commanded velocity of the axis (as its drive receives it, before the play)
+        uf = _fine(cmd[ax], steps[ax])
+        vel = np.gradient(uf, dt)
+        return -friction[ax] * np.tanh(vel / V_FRICTION)
+
+    if "a" in chans:
+        assert not frame_force, "no frame force on a corexy"
+        # friction on the carriage along x pushes both belts' carriages alike, along y
+        # oppositely (x = (A + B)/2, y = (A − B)/2)
+        wx = coulomb("x") if "x" in friction else 0.0
+        wy = coulomb("y") if "y" in friction else 0.0
+        on = "carriage" if friction else "frame"
+        wa = (wx + wy) + np.zeros_like(tf) if friction else None
+        wb = (wx - wy) + np.zeros_like(tf) if friction else None
+        ya = _sim_fine(chans["a"], u["x"] + u["y"], ts_s, wa, on)
+        yb = _sim_fine(chans["b"], u["x"] - u["y"], ts_s, wb, on)
+        return 0.5 * (ya + yb), 0.5 * (ya - yb)
+    out = {}
+    # an axis pushed by the other's motion after the other
+    for ax in sorted("xy", key=lambda a: a in frame_force):
+        w, on = None, "frame"
+        if ax in friction:
+            assert ax not in frame_force
+            w, on = coulomb(ax), "carriage"
+        elif ax in frame_force:
+            coef, oth, source = frame_force[ax]
+            assert oth not in frame_force
+            c = cmd[oth] if source == "command" else out[oth]
+            acc = np.gradient(np.gradient(c, ts_s), ts_s)
+            w = coef * np.interp(tf, np.arange(len(c)) * ts_s, acc)
+            if source == "command" and steps[oth]:
+                w = np.concatenate([np.zeros(steps[oth]), w[:-steps[oth]]])
+        out[ax] = _sim_fine(chans[ax], u[ax], ts_s, w, on)
+    return out["x"], out["y"]
+
+
 def _fine(u, delay_steps):
     K = len(u)
     uf = np.interp(np.arange((K - 1) * R + 1) / R, np.arange(K), u)
@@ -319,10 +421,11 @@ def _fine(u, delay_steps):
     return uf
 
 
-def _sim_fine(ch: Channel, uf, ts_s, w_fine):
+def _sim_fine(ch: Channel, uf, ts_s, w_fine, force_on: str = "frame"):
     """Response at the sample times (every R-th fine step) to a fine command ``uf`` (linear
-    between fine steps: first-order hold, exact) and a force ``w_fine``, from rest at uf[0]."""
-    A, B, C = ch.ss()
+    between fine steps: first-order hold, exact) and a force ``w_fine`` (on the frame / the
+    carriage: ``Channel.ss``), from rest at uf[0]."""
+    A, B, C = ch.ss(force_on)
     dt = ts_s / R
     n = A.shape[0]
     M = np.zeros((n + 4, n + 4))
@@ -364,10 +467,13 @@ def bench_a_commands() -> dict:
 
 
 def write_dataset(mach: Machine, out: pathlib.Path, *, effects: bool = True,
-                  fan_hz: float | None = None) -> dict:
+                  fan_hz: float | None = None, more_effects: bool = False) -> dict:
     """Write FRFs, logs and labels of ``mach`` under ``out`` (benchA's layout); return labels.
     ``fan_hz`` puts the fan (a periodic_time effect, not on a corexy) at that frequency instead
-    of the drawn one; the rest of the data set is the same."""
+    of the drawn one; the rest of the data set is the same. ``more_effects`` appends the logs
+    of the drive's effects (``_more_effects``: backlash, periodic_position, friction,
+    cross_coupling), drawn from a random stream of their own: every other file is the same
+    as without them."""
     rng = np.random.default_rng(10_000 + mach.seed)
     out = pathlib.Path(out)
     (out / "frf").mkdir(parents=True, exist_ok=True)
@@ -462,6 +568,16 @@ def write_dataset(mach: Machine, out: pathlib.Path, *, effects: bool = True,
                    header="t,x_cmd,y_cmd,x,y", comments="", fmt="%.6f")
         logs.append({"file": fname, "path": path,
                      "effects": labels or [{"kind": "none", "axis": None, "params": {}}]})
+    if more_effects:
+        rng2 = np.random.default_rng(20_000 + mach.seed)
+        for path, kw, labels in _more_effects(mach, plant, rng2):
+            x_cmd, y_cmd = cmds[path]
+            x, y = respond_xy(mach, plant, x_cmd, y_cmd, ts, rng=rng2, **kw)
+            t = np.arange(len(x_cmd)) * ts
+            fname = f"logs/log_{len(logs) + 1:02d}.csv"
+            np.savetxt(out / fname, np.column_stack([t, x_cmd, y_cmd, x, y]), delimiter=",",
+                       header="t,x_cmd,y_cmd,x,y", comments="", fmt="%.6f")
+            logs.append({"file": fname, "path": path, "effects": labels})
     labels = {"dataset": f"foreign-{mach.seed}", "machine": mach.describe(), "logs": logs,
               "frf_measurement": truth,
               "plant": {**{a: {"dominant_hz": round(_axis_dominant(plant, a), 3)} for a in "xy"},
@@ -471,6 +587,83 @@ def write_dataset(mach: Machine, out: pathlib.Path, *, effects: bool = True,
                             for a in "xy"] if mach.kind == "corexy" else [])}
     (out / "labels.json").write_text(json.dumps(labels, indent=1))
     return labels
+
+
+def _more_effects(mach: Machine, plant: dict, rng) -> list:
+    """[(path, respond_xy keywords, labels)] of the drive's effect logs, one effect each, on a
+    random axis, in this module's physics (``respond_xy``):
+
+    ``backlash``           a dead band of width b 0.02–0.08 mm between motor and belt / screw,
+                           on the command before the dynamics; ``magnitude_mm`` = b;
+    ``periodic_position``  pulley / screw eccentricity: the drive sees u + A sin(2π u/λ + φ),
+                           A 0.005–0.02 mm, λ 2–8 mm; ``wavelength_mm`` λ, ``amplitude_mm`` A;
+    ``friction``           a Coulomb force −F tanh(v_cmd / 0.5 mm/s) on the carriage / table;
+                           ``magnitude_mm`` (0.01–0.04 mm, F derived from it) is benchA's
+                           quasi-static lag F × the static compliance of the sensed position to
+                           a carriage force (belt kinds: 1/k + 1/kf; a corexy: the mean of its
+                           belts'); the servo's integrator takes a steady lag out, its label is
+                           the lag of the loop without it, F (1/kp + 1/k) — a scale, not a
+                           steady lag (``physics.steady`` False);
+    ``cross_coupling``     (not a corexy: its belts already couple the axes) a force on this
+                           axis's frame (servo: table) = κ m_other a_other, two logs: a_other
+                           the other carriage's actual acceleration (the reaction of its real
+                           motion, as benchA), then its commanded one;
+                           ``mm_per_mm_s2`` (2–6e-6) is its quasi-static displacement per mm/s²
+                           (κ m_other × the frame's static compliance; the servo's as above).
+    """
+    kinds = ["backlash", "periodic_position", "friction"]
+    if "a" not in plant:
+        kinds += ["cross_coupling", "cross_coupling_cmd"]
+    paths = {"backlash": "rose5", "periodic_position": "benchy_layer10", "friction": "butterfly",
+             "cross_coupling": "rose5", "cross_coupling_cmd": "rose5"}
+    servo = mach.kind == "servo_screw"
+    out = []
+    for kind in kinds:
+        ax = "xy"[int(rng.integers(2))]
+        oth = "y" if ax == "x" else "x"
+        if "a" in plant:
+            ch = plant["a"]
+        else:
+            ch = plant[ax]
+        if kind == "backlash":
+            b = round(float(rng.uniform(0.02, 0.08)), 4)
+            kw = {"play": {ax: b}}
+            lab = {"kind": kind, "axis": ax, "params": {"magnitude_mm": b},
+                   "physics": {"applied": "dead band between motor and belt / screw on the "
+                                          "command, total width = magnitude_mm, starts centred"}}
+        elif kind == "periodic_position":
+            A = round(float(rng.uniform(0.005, 0.02)), 4)
+            lam = round(float(rng.uniform(2.0, 8.0)), 3)
+            ph = float(rng.uniform(0, 2 * math.pi))
+            kw = {"ecc": {ax: (A, lam, ph)}}
+            lab = {"kind": kind, "axis": ax, "params": {"wavelength_mm": lam, "amplitude_mm": A},
+                   "physics": {"applied": "drive sees u + A sin(2 pi u / wavelength + phase)",
+                               "phase_rad": round(ph, 4)}}
+        elif kind == "friction":
+            mag = round(float(rng.uniform(0.01, 0.04)), 4)
+            if "a" in plant:
+                comp = 0.5 * (plant["a"].compliance("carriage") + plant["b"].compliance("carriage"))
+            else:
+                comp = ch.compliance("carriage")
+            F = mag / comp
+            kw = {"friction": {ax: F}}
+            lab = {"kind": kind, "axis": ax, "params": {"magnitude_mm": mag},
+                   "physics": {"applied": "Coulomb force -F tanh(v_cmd / 0.5 mm/s) on the "
+                                          "carriage / table; magnitude_mm = F x static compliance",
+                               "force": F, "steady": not servo}}
+        else:
+            c = round(float(rng.uniform(2e-6, 6e-6)), 8)
+            coef = c / ch.compliance("frame")
+            m_other = plant[oth].p["m"]
+            source = "command" if kind == "cross_coupling_cmd" else "actual"
+            kw = {"frame_force": {ax: (coef, oth, source)}}
+            lab = {"kind": "cross_coupling", "axis": ax,
+                   "params": {"from_axis": oth, "mm_per_mm_s2": c},
+                   "physics": {"applied": f"force on the frame (servo: table) = kappa m_other "
+                                          f"a_other, a_other its {source} acceleration",
+                               "source": source, "kappa": coef / m_other, "steady": not servo}}
+        out.append((paths[kind], kw, [lab]))
+    return out
 
 
 @dataclass

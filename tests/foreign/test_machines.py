@@ -88,3 +88,57 @@ def test_dataset_layout_and_labels(tmp_path):
     f = np.loadtxt(tmp_path / "frf" / "x_1.csv", delimiter=",", skiprows=1)
     start, stop, step = mach.frf_grid
     assert f[0, 0] == start and f[-1, 0] <= stop and np.allclose(np.diff(f[:, 0]), step)
+
+
+def _quiet(seed, kind):
+    mach = make_machine(seed, kind)
+    mach.sensor_noise_mm, mach.sensor_q_mm = 0.0, 1e-9
+    return mach
+
+
+@pytest.mark.parametrize("kind", ["belt_frame", "belt_hotend"])
+def test_drive_effects_do_what_their_labels_say(kind):
+    """The drive's effects (write_dataset's ``more_effects``) at quasi-static conditions: a
+    dead band lags a move by half its width, an eccentric pulley offsets a rest by
+    A sin(2π u/λ + φ), a Coulomb friction lags a steady move by F × the carriage compliance
+    (benchA's quasi-static lag), a frame force of coef × the other axis's acceleration
+    displaces this axis by coef × the frame compliance per mm/s²."""
+    mach = _quiet(3, kind)
+    ch = mach.chans["x"]
+    t = np.arange(3000) * TS
+    ramp = 10 + np.clip(20 * (t - 0.2), 0, 50)        # 20 mm/s for 2.5 s, then rest at 60
+    y = np.full(t.size, 5.0)
+    x0, _ = respond_xy(mach, mach.chans, ramp, y, TS)
+    xb, _ = respond_xy(mach, mach.chans, ramp, y, TS, play={"x": 0.04})
+    assert abs(x0[-1] - xb[-1] - 0.02) < 1e-5
+    xe, _ = respond_xy(mach, mach.chans, ramp, y, TS, ecc={"x": (0.01, 4.0, 0.3)})
+    assert abs(xe[-1] - x0[-1] - 0.01 * np.sin(2 * np.pi * 60 / 4.0 + 0.3)) < 1e-5
+    F = 0.03 / ch.compliance("carriage")
+    xf, _ = respond_xy(mach, mach.chans, ramp, y, TS, friction={"x": F})
+    i = int(2.6 / TS)                                  # steady motion, 2.4 s into the ramp
+    assert abs(x0[i] - xf[i] - 0.03) < 3e-4
+    # y accelerates at a constant 500 mm/s²: x's frame is pushed by a steady force
+    ya = 5 + 250 * np.clip(t - 0.2, 0, None) ** 2
+    c = 4e-6
+    xc0, _ = respond_xy(mach, mach.chans, np.full(t.size, 10.0), ya, TS)
+    xc, _ = respond_xy(mach, mach.chans, np.full(t.size, 10.0), ya, TS,
+                       frame_force={"x": (c / ch.compliance("frame"), "y", "command")})
+    i = int(2.6 / TS)
+    assert abs(xc[i] - xc0[i] - c * 500) < 1e-4
+
+
+def test_more_effects_leave_every_other_file_as_it_was(tmp_path):
+    import hashlib
+
+    mach = make_machine(6)
+    a, b = tmp_path / "a", tmp_path / "b"
+    write_dataset(mach, a)
+    labels = write_dataset(mach, b, more_effects=True)
+    for f in a.rglob("*.csv"):
+        assert hashlib.sha256(f.read_bytes()).digest() == \
+            hashlib.sha256((b / f.relative_to(a)).read_bytes()).digest(), f
+    old = json.loads((a / "labels.json").read_text())
+    assert labels["logs"][:len(old["logs"])] == old["logs"]
+    kinds = [e["effects"][0]["kind"] for e in labels["logs"][len(old["logs"]):]]
+    assert kinds == ["backlash", "periodic_position", "friction", "cross_coupling",
+                     "cross_coupling"]
