@@ -562,7 +562,11 @@ def _candidates(A: _Axis, base: _Model, named_kinds, other: _Axis, base_other: _
     out.append(("backlash", form, {"magnitude_mm": float(b), "offset_mm": float(m.w_mean[-1]),
                                     "form": form}, m, tried, 2))
 
-    # friction: free weight = the quasi-static lag
+    # friction: free weight = the quasi-static lag. A Coulomb force opposes the motion: it
+    # dissipates, so the axis lags (weight > 0). A lead is not friction: on a PID servo whose
+    # modal fit leaves a few µm of lead (tests/foreign, seed 5) "friction −0.010 mm" was named
+    # on two of three clean logs, and an integrator's transients at reversals came out as
+    # −0.003 to −0.033 mm (benchmarks/foreign_effects.py). Only forms with a lag compete.
     best = None
     for tau in FRICTION_TAU_S:
         s = relax_sign(cmd, ts, tau)
@@ -570,15 +574,19 @@ def _candidates(A: _Axis, base: _Model, named_kinds, other: _Axis, base_other: _
         if A.phys.force is not None:
             forms.append(("force", respond(s, A.phys.force)[:, None]))
         for form, G in forms:
-            v = score_extra(G)
+            m = with_extra(G)
+            if not m.w_mean[-1] > 0:
+                continue
+            e = m.resid_mean[fit]
+            v = -float(e @ e)
             # τ is seen only where the axis rests after moving: the simplest (first) wins ties
             if best is None or v > best[0] + 1e-9 * abs(best[0]):
-                best = (v, form, tau, G)
-    _, form, tau, G = best
-    m = with_extra(G)
-    out.append(("friction", form, {"magnitude_mm": float(m.w_mean[-1]), "relax_s": float(tau),
-                                    "form": form},
-                m, 3 * len(FRICTION_TAU_S), 2))
+                best = (v, form, tau, m)
+    if best is not None:
+        _, form, tau, m = best
+        out.append(("friction", form, {"magnitude_mm": float(m.w_mean[-1]),
+                                        "relax_s": float(tau), "form": form},
+                    m, 3 * len(FRICTION_TAU_S), 2))
 
     # delay (unit weight)
     if "delay" not in named_kinds:
