@@ -6,6 +6,8 @@ import pathlib
 
 import pytest
 
+import gcode_feedopt  # noqa: F401  (first: one BLAS thread per process, as the CLI runs)
+
 REPO = pathlib.Path(__file__).resolve().parents[1]
 SHARED = REPO.parent / "shared"
 DATA = SHARED / "data"
