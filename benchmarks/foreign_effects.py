@@ -35,8 +35,7 @@ REPO = pathlib.Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(REPO), str(REPO / "benchmarks")]
 
 from gcode_feedopt.closedloop.diagnose import diagnose_log  # noqa: E402
-from gcode_feedopt.closedloop.logs import MotionLog, log_warmup  # noqa: E402
-from independent import bench_a_profile, describe, read  # noqa: E402
+from independent import bench_a_profile, describe, encoder_log, read  # noqa: E402
 from tests.foreign.machines import (Machine, _more_effects, apply_factors,  # noqa: E402
                                     make_machine, respond_xy, write_dataset)
 
@@ -115,10 +114,7 @@ def run_seed(seed: int, base: pathlib.Path) -> list:
         if truth["kind"] not in NEW:
             continue
         name = e["file"].split("/")[-1]
-        cmd, pos = read(name, out)
-        w0 = log_warmup(cmd[:, :2], prof.ts_s, prof)
-        log = MotionLog(ts_s=prof.ts_s, cmd_mm=cmd, pos_mm=pos, source=name, kind="encoder",
-                        warmup=w0)
+        log = encoder_log(name, out, prof)
         t0 = time.perf_counter()
         d = diagnose_log(log, prof)
         rows.append({"seed": seed, "machine": mach.kind, "log": name[:-4], "truth": truth,

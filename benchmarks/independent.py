@@ -58,6 +58,14 @@ def read(name, data=DATA):
     return cmd, pos
 
 
+def encoder_log(name, data, prof) -> MotionLog:
+    """Log ``name`` of a data set as ``diagnose`` reads an encoder log (its warm-up for
+    ``prof``'s twin)."""
+    cmd, pos = read(name, data)
+    return MotionLog(ts_s=prof.ts_s, cmd_mm=cmd, pos_mm=pos, source=name, kind="encoder",
+                     warmup=log_warmup(cmd[:, :2], prof.ts_s, prof))
+
+
 def coverage(prof, cmd, pos, w0, learn):
     """% of samples (after the warm-up) inside the 95 % interval, per axis, as predict runs."""
     out = []
@@ -108,10 +116,8 @@ def evaluate(data=DATA, prof=None):
     rows = []
     for e in labels["logs"]:
         name = e["file"].split("/")[-1]
-        cmd, pos = read(name, data)
-        w0 = log_warmup(cmd[:, :2], prof.ts_s, prof)
-        log = MotionLog(ts_s=prof.ts_s, cmd_mm=cmd, pos_mm=pos, source=name, kind="encoder",
-                        warmup=w0)
+        log = encoder_log(name, data, prof)
+        cmd, pos, w0 = log.cmd_mm, log.pos_mm, log.warmup
         t0 = time.perf_counter()
         d = diagnose_log(log, prof)
         dt = time.perf_counter() - t0

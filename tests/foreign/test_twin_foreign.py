@@ -46,6 +46,17 @@ def _log(out, prof, name):
     return MotionLog(ts_s=prof.ts_s, cmd_mm=cmd, pos_mm=pos, source=name, kind="encoder", warmup=w0)
 
 
+def _named(made, kind):
+    """(truth, the diagnosis's effect of that kind on its axis or None, Diagnosis) of the
+    data set's first log whose one effect is ``kind``."""
+    out, labels, prof = made
+    e = next(e for e in labels["logs"] if e["effects"][0]["kind"] == kind)
+    truth = e["effects"][0]
+    d = diagnose_log(_log(out, prof, e["file"].split("/")[-1]), prof)
+    g = next((g for g in d.effects if g["kind"] == kind and g["axis"] == truth["axis"]), None)
+    return truth, g, d
+
+
 def _rms(v):
     return float(np.sqrt(np.mean(np.square(v))))
 
@@ -177,12 +188,7 @@ def test_a_fan_inside_a_modes_band_is_still_named(dataset):
     """The ring a fan must beat near a mode (diagnose._ring_bar) is driven by the motion; a
     fan at 41 Hz on an axis whose mode is at 41.9 Hz runs on regardless, and is named with
     its amplitude."""
-    out, labels, prof = dataset("fan23")
-    e = next(e for e in labels["logs"] if e["effects"][0]["kind"] == "periodic_time")
-    truth = e["effects"][0]
-    d = diagnose_log(_log(out, prof, e["file"].split("/")[-1]), prof)
-    g = next((g for g in d.effects if g["kind"] == "periodic_time" and g["axis"] == truth["axis"]),
-             None)
+    truth, g, d = _named(dataset("fan23"), "periodic_time")
     assert g is not None, (truth, d.effects)
     assert abs(g["params"]["frequency_hz"] - 41.0) < 0.1, g
     tv = truth["params"]["amplitude_mm"]
@@ -216,12 +222,7 @@ def test_a_dead_band_in_a_belt_drive_is_named_with_its_width(which, dataset):
     before the dynamics), named backlash on its axis with its width within 5 % — as on every
     belt machine of seeds 0–23 (7/7, worst +4.2 %; benchmarks/foreign_effects.py). Not so
     on a servo or a corexy whose twin errs by as much as the play: those are not tested."""
-    out, labels, prof = dataset(which)
-    e = next(e for e in labels["logs"] if e["effects"][0]["kind"] == "backlash")
-    truth = e["effects"][0]
-    d = diagnose_log(_log(out, prof, e["file"].split("/")[-1]), prof)
-    g = next((g for g in d.effects if g["kind"] == "backlash" and g["axis"] == truth["axis"]),
-             None)
+    truth, g, d = _named(dataset(which), "backlash")
     assert g is not None, (truth, d.effects)
     tv = truth["params"]["magnitude_mm"]
     assert abs(g["params"]["magnitude_mm"] - tv) <= 0.05 * tv, (truth, g)

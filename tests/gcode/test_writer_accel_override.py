@@ -131,6 +131,18 @@ def test_prusaslicer_mini_benchy(tmp_path):
     assert (snaps[-1].accel_print, snaps[-1].max_accel["x"]) == (500.0, 500.0)
 
 
+def one_override(data: bytes, ours: bytes, back: bytes):
+    """The square tower's written lines and the index of its one lowering line
+    (``SET_VELOCITY_LIMIT ... ACCEL=500``), asserting ``ours`` right after it, no other line of
+    ours, and ``back`` as the one line giving the file's value back."""
+    lines = data.splitlines()
+    k = lines.index(b"SET_VELOCITY_LIMIT SQUARE_CORNER_VELOCITY=1 ACCEL=500")
+    assert lines[k + 1] == ours + OURS
+    assert [ln for ln in lines if ln.endswith(OURS)] == [lines[k + 1]]
+    assert [ln for ln in lines if ln.endswith(BACK)] == [back + BACK]
+    return lines, k
+
+
 def test_square_tower_on_marlin(tmp_path):
     """Cura's ``SET_VELOCITY_LIMIT SQUARE_CORNER_VELOCITY=1 ACCEL=500``: the Marlin model reads
     its ACCEL as M204 P and T, so ``M204 P3000 T3000`` follows it."""
@@ -139,11 +151,7 @@ def test_square_tower_on_marlin(tmp_path):
     # measured: 1335.9 s -> 886.5 s (-33.6 %); --accel file: 1325.2 s (-0.8 %)
     assert rep.output_time_s < 0.7 * rep.input_time_s
     assert rep.output_time_s == pytest.approx(rep.plan_time_s, rel=0.005)
-    lines = data.splitlines()
-    k = lines.index(b"SET_VELOCITY_LIMIT SQUARE_CORNER_VELOCITY=1 ACCEL=500")
-    assert lines[k + 1] == b"M204 P3000 T3000 " + OURS
-    assert [ln for ln in lines if ln.endswith(OURS)] == [lines[k + 1]]
-    assert [ln for ln in lines if ln.endswith(BACK)] == [b"M204 P500 T500 " + BACK]
+    one_override(data, b"M204 P3000 T3000 ", b"M204 P500 T500 ")
     # a pressure-advance tower calibrates at the accelerations it was sliced with: said
     assert any("TUNING_TOWER" in n and "--accel file" in n and ":13:" in n for n in rep.notes), rep.notes
     rep_f, *_ = run(tmp_path, "cura-4.8_ender3_square-tower", "ender3pro", accel="file")
@@ -158,11 +166,8 @@ def test_klipper_set_velocity_limit(tmp_path):
     # measured: 1474.4 s -> 874.2 s (-40.7 %); --accel file: 1474.4 s
     assert rep.output_time_s < 0.65 * rep.input_time_s
     assert rep.output_time_s == pytest.approx(rep.plan_time_s, rel=0.005)
-    lines = data.splitlines()
-    k = lines.index(b"SET_VELOCITY_LIMIT SQUARE_CORNER_VELOCITY=1 ACCEL=500")
-    assert lines[k + 1] == b"SET_VELOCITY_LIMIT ACCEL=5000 " + OURS
-    assert [ln for ln in lines if ln.endswith(OURS)] == [lines[k + 1]]
-    assert [ln for ln in lines if ln.endswith(BACK)] == [b"SET_VELOCITY_LIMIT ACCEL=500 " + BACK]
+    lines, k = one_override(data, b"SET_VELOCITY_LIMIT ACCEL=5000 ",
+                            b"SET_VELOCITY_LIMIT ACCEL=500 ")
     lim = firmware.move_limits(out, firmware.as_configured(profile))
     moving = slice(next(i for i, mv in enumerate(out.moves) if mv.line_no > k + 1), -1)
     assert set(lim.accel_mm_s2[moving].tolist()) == {5000.0}
