@@ -22,6 +22,7 @@ CASES = {
     "g20 inches": (b"G20\n" + GOOD_TAIL, ERR, "G20"),
     "word without value": (b"G1 X F300\n" + GOOD_TAIL, ERR, "cannot read the motion"),
     "feed zero": (b"G1 X1 F0\n" + GOOD_TAIL, ERR, "must be positive"),
+    "feed 1e-30": (b"G1 X1 F1e-30\n" + GOOD_TAIL, ERR, "below 0.1 mm/min"),
     "no feed at all": (b"G1 X1 Y1\nG1 X2 Y2 E1\n", ERR, "without any feed"),
     "absurd coordinates": (b"G1 X99999999 F300\n" + GOOD_TAIL, ERR, "beyond"),
     "nan coordinate": (b"G1 Xnan F300\n" + GOOD_TAIL, ERR, ""),

@@ -240,6 +240,10 @@ def _raw_values(code: str) -> dict[str, str]:
     return {m.group(1).upper(): m.group(2) for m in _NUM.finditer(code)}
 
 
+#: Slowest feed accepted, mm/min (slicers' cooling slow-downs go to tens of mm/min).
+MIN_FEED_MM_MIN = 0.1
+
+
 def _f(text: str, name: str, line_no: int, letter: str) -> float:
     try:
         v = float(text)
@@ -470,6 +474,11 @@ def _read_program(data: bytes, name: str, *, flavour: str, g91_relative_e: bool,
             fv = _f(feed_txt, name, i, "F")
             if fv <= 0:
                 raise GCodeError(f"{name}:{i + 1}: F{feed_txt} must be positive; fix the feed")
+            if fv < MIN_FEED_MM_MIN:
+                # F1e-30 planned a move of millions of years: the trapezoid's arrays could not
+                # be allocated (or exhausted the memory) instead of a one-line error
+                raise GCodeError(f"{name}:{i + 1}: F{feed_txt} is below {MIN_FEED_MM_MIN:g} "
+                                 "mm/min, slower than any machine moves; fix the feed")
             st.feed_mm_s = fv / 60.0
         if motion is None:
             if mcodes or gcodes or tcodes:
