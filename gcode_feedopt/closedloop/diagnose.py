@@ -30,9 +30,10 @@ then refined. A kind may have two forms, the one that fits better is taken (the 
 - ``periodic_position`` (``wavelength_mm``, ``amplitude_mm``): a sinusoid of the commanded
   position (tooth pitch, screw runout) through the dynamics (``dynamics``) or at the output;
 - ``cross_coupling`` (``from_axis`` and ``mm_per_mm_s2`` or ``coefficient``): the other axis's
-  acceleration through this axis's dynamics (form ``acceleration``, a frame force; form
-  ``belt``, through them twice: a corexy's mismatched belts, ``twin.extensions``), or its
-  position (form ``position``, a skew).
+  predicted acceleration through this axis's dynamics (form ``acceleration``, a frame force),
+  its commanded acceleration through them (form ``command``, a motor force that follows the
+  command), the predicted one through them twice (form ``belt``: a corexy's mismatched belts,
+  ``twin.extensions``), or its position (form ``position``, a skew).
 
 **3. The test (stated).** Candidates are ranked by the sum of squares they explain on the fit
 part. A candidate is named only if all hold:
@@ -627,21 +628,22 @@ def _candidates(A: _Axis, base: _Model, named_kinds, other: _Axis, base_other: _
                     tried, 1))
 
     # cross coupling from the other axis
+    # (the other axis's predicted acceleration: its carriage's reaction, ringing included; its
+    # commanded one: a motor force that follows the command, tests/foreign cross_coupling_cmd)
     po = other.p0
-    acc = np.gradient(np.gradient(po, ts), ts)
-    G_acc = respond(acc, hd)[:, None]
-    G_belt = respond(G_acc[:, 0], hd)[:, None]
-    G_pos = (po - po[0])[:, None]
-    v_acc, v_belt, v_pos = score_extra(G_acc), score_extra(G_belt), score_extra(G_pos)
-    if max(v_acc, v_belt) >= v_pos:
-        form = "acceleration" if v_acc >= v_belt else "belt"
-        m = with_extra(G_acc if form == "acceleration" else G_belt)
-        params = {"from_axis": other.ax, "mm_per_mm_s2": float(m.w_mean[-1]), "form": form}
-    else:
-        m = with_extra(G_pos)
-        params = {"from_axis": other.ax, "coefficient": float(m.w_mean[-1]), "form": "position"}
-        form = "position"
-    out.append(("cross_coupling", form, params, m, 3, 2))
+
+    def acc(p):
+        return np.gradient(np.gradient(p, ts), ts)
+
+    G_acc = respond(acc(po), hd)[:, None]
+    forms = {"acceleration": G_acc, "command": respond(acc(other.cmd), hd)[:, None],
+             "belt": respond(G_acc[:, 0], hd)[:, None], "position": (po - po[0])[:, None]}
+    score = {form: score_extra(G) for form, G in forms.items()}
+    form = max(forms, key=lambda f: score[f])     # ties: the first, in the order above
+    m = with_extra(forms[form])
+    name = "coefficient" if form == "position" else "mm_per_mm_s2"
+    params = {"from_axis": other.ax, name: float(m.w_mean[-1]), "form": form}
+    out.append(("cross_coupling", form, params, m, len(forms), 2))
     return out
 
 

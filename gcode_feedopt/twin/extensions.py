@@ -14,9 +14,12 @@ way ``diagnose`` fitted it:
 - ``friction``: m·(−sign v_cmd), relaxing with ``relax_s`` once the axis stops, through the
   dynamics (``response``), the force response (``force``) or at the output (``output``);
 - ``cross_coupling``: ``mm_per_mm_s2`` times the other axis's predicted acceleration through
-  this axis's dynamics (form ``acceleration``, a frame force), through them twice (form
-  ``belt``: a corexy whose two belts differ, see below), or ``coefficient`` times the other
-  axis's predicted motion (form ``position``);
+  this axis's dynamics (form ``acceleration``, a frame force: the reaction of the other
+  carriage's real motion), its commanded acceleration through them (form ``command``: the
+  reaction of a motor force that follows the other axis's command, as a stiff servo's does,
+  not its carriage's ringing), the predicted one through them twice (form ``belt``: a corexy whose two
+  belts differ, see below), or ``coefficient`` times the other axis's predicted motion (form
+  ``position``);
 - ``gain``: besides its change of the response (about the first commanded sample, where the
   twin works), the constant (s − 1)·x_0 that a scale about the machine origin adds.
 
@@ -62,7 +65,8 @@ PARAMS = {
     "friction": {"magnitude_mm": (-10.0, 10.0), "relax_s": (0.0, 1e6),
                  "form": ("response", "force", "output")},
     "cross_coupling": {"from_axis": ("x", "y"), "mm_per_mm_s2": (-1.0, 1.0),
-                       "coefficient": (-1.0, 1.0), "form": ("acceleration", "belt", "position")},
+                       "coefficient": (-1.0, 1.0),
+                       "form": ("acceleration", "command", "belt", "position")},
 }
 #: parameters a kind must have (the rest default as in ``DEFAULTS``)
 REQUIRED = {
@@ -94,12 +98,14 @@ def relax_sign(cmd_mm: np.ndarray, ts_s: float, tau_s: float) -> np.ndarray:
 
 def additive_term(kind: str, params: dict, cmd_mm: np.ndarray, ts_s: float, h: np.ndarray, *,
                   other_pred_mm: np.ndarray | None = None, force_h: np.ndarray | None = None,
-                  pred_mm: np.ndarray | None = None) -> np.ndarray:
+                  pred_mm: np.ndarray | None = None,
+                  other_cmd_mm: np.ndarray | None = None) -> np.ndarray:
     """(K,) the deterministic term one extension adds to an axis's predicted position, mm.
 
     Args:
         cmd_mm: (K,) the axis's commanded position. h: (n,) its unit-DC impulse response.
         other_pred_mm: (K,) the other axis's predicted position (cross_coupling).
+        other_cmd_mm: (K,) the other axis's commanded position (cross_coupling form ``command``).
         force_h: (n,) the force response (friction form ``force``; else ``h`` is used).
         pred_mm: (K,) the axis's prediction, for the ``output`` forms (default h * cmd).
     """
@@ -123,10 +129,11 @@ def additive_term(kind: str, params: dict, cmd_mm: np.ndarray, ts_s: float, h: n
             return p["magnitude_mm"] * s
         return p["magnitude_mm"] * respond(s, force_h if p["form"] == "force" and force_h is not None else h)
     if kind == "cross_coupling":
-        if other_pred_mm is None:
+        src = other_cmd_mm if p["form"] == "command" else other_pred_mm
+        if src is None:
             return np.zeros(K)
-        po = np.asarray(other_pred_mm, float)
-        if p["form"] in ("acceleration", "belt"):
+        po = np.asarray(src, float)
+        if p["form"] in ("acceleration", "command", "belt"):
             acc = np.gradient(np.gradient(po, ts_s), ts_s)
             g = respond(acc, h)
             return p["mm_per_mm_s2"] * (respond(g, h) if p["form"] == "belt" else g)
@@ -171,7 +178,8 @@ def mean_offsets(profile, cmd_mm: np.ndarray) -> np.ndarray:
             other = e["params"].get("from_axis")
             out[:, i] += additive_term(e["kind"], e["params"], cmd[:, i], profile.ts_s, h[ax],
                                        other_pred_mm=preds.get(other), force_h=fh,
-                                       pred_mm=preds[ax])
+                                       pred_mm=preds[ax],
+                                       other_cmd_mm=_column(cmd, axes, other))
     return out
 
 
@@ -208,12 +216,18 @@ def motion_offsets(profile):
         out = np.zeros((cmd.shape[0], 2))
         preds = {ax: respond(cmd[:, i], h[ax]) for i, ax in enumerate(axes)}
         for i, ax, e in todo:
+            other = e["params"].get("from_axis")
             out[:, i] += additive_term(e["kind"], e["params"], cmd[:, i], profile.ts_s, h[ax],
-                                       other_pred_mm=preds.get(e["params"].get("from_axis")),
-                                       pred_mm=preds[ax])
+                                       other_pred_mm=preds.get(other), pred_mm=preds[ax],
+                                       other_cmd_mm=_column(cmd, axes, other))
         return out
 
     return offsets, memory
+
+
+def _column(cmd: np.ndarray, axes, axis):
+    """cmd's column of ``axis`` (None when the effect names no axis)."""
+    return cmd[:, axes.index(axis)] if axis in axes else None
 
 
 def _force_h(profile, axis):

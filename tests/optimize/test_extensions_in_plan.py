@@ -58,3 +58,35 @@ def test_the_plan_is_judged_with_the_cross_coupling():
     np.testing.assert_allclose(sch.info["_predicted_xy_mm"], mean.T + term, atol=1e-6)
     assert sch.duration_s > plain.duration_s
     assert sch.info["relaxed_samples"] == 0
+
+
+def test_a_command_form_coupling_follows_the_other_axiss_command():
+    """Form ``command``: the other axis's *commanded* acceleration through this axis's
+    dynamics (a motor force that follows the command), not its predicted motion: the term
+    moves with x's command, equals the closed form on any command, and ``predict``'s mean
+    (mean_offsets) and the plan's (motion_offsets) agree."""
+    from gcode_feedopt.twin.extensions import additive_term, mean_offsets
+    from gcode_feedopt.twin.physics import axis_impulse
+    from gcode_feedopt.vm.plant import respond
+
+    prof, _, path = _setup()
+    cmd_e = {"kind": "cross_coupling", "axis": "y",
+             "params": {"from_axis": "x", "mm_per_mm_s2": 4e-6, "form": "command"}}
+    ext = extend_profile(prof, [cmd_e])
+    sch = plan_schedule("kinematic", path, prof, tolerance_mm=0.1, stringency=0.95)
+    cmd = path.position(sch.s_mm)[:, :2]
+    ts = prof.ts_s
+    hy = np.asarray(axis_impulse(prof, "y").mean)
+    hy = hy / hy.sum()
+    acc_x = np.gradient(np.gradient(cmd[:, 0], ts), ts)
+    want = 4e-6 * respond(acc_x, hy)
+    off, _ = motion_offsets(ext)
+    np.testing.assert_allclose(off(cmd)[:, 1], want, atol=1e-12)
+    np.testing.assert_allclose(mean_offsets(ext, cmd)[:, 1], want, atol=1e-12)
+    assert np.abs(want).max() > 1e-3 and np.abs(off(cmd)[:, 0]).max() == 0.0
+    # the predicted-acceleration form differs: x's ringing is in it, not in the command's
+    pred_x = respond(cmd[:, 0], np.asarray(axis_impulse(prof, "x").mean) /
+                     np.sum(axis_impulse(prof, "x").mean))
+    acc = additive_term("cross_coupling", {**cmd_e["params"], "form": "acceleration"},
+                        cmd[:, 1], ts, hy, other_pred_mm=pred_x, other_cmd_mm=cmd[:, 0])
+    assert np.abs(acc - want).max() > 0.1 * np.abs(want).max()
