@@ -18,7 +18,8 @@ import time
 
 import numpy as np
 
-from gcode_feedopt.closedloop.diagnose import axis_physics, diagnose_arrays
+from gcode_feedopt.closedloop.diagnose import diagnose_arrays
+from gcode_feedopt.twin.physics import axis_physics
 from gcode_feedopt.closedloop.extend import extend_profile
 from gcode_feedopt.optimize.compare import run_method
 from gcode_feedopt.pipeline import path_for, read_for

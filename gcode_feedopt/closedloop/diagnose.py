@@ -67,7 +67,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 from scipy import stats
@@ -75,9 +74,8 @@ from scipy.signal import oaconvolve
 
 from ..errors import LogError
 from ..twin.extensions import mean_offsets, relax_sign
-from ..twin.modal import ModalModel
 from ..twin.model import axis_twin, noise_floor_mm
-from ..twin.physics import axis_impulse, axis_modal
+from ..twin.physics import RINGING_ZETA, AxisPhysics, axis_physics
 from ..vm import effects as fx
 from ..vm.plant import respond
 from .extend import extend_profile
@@ -95,39 +93,11 @@ MIN_EXPLAINED = 0.2
 MIN_EFFECT_RMS_MM = 0.001
 MAX_EFFECTS = 3
 FIT_FRACTION = 0.6
-#: Damping below which a dominant mode rings (its move inside the members' spread is
-#: scanned, not linearised: ``_absorb_mode``); a closed loop at ζ 0.5–0.8 does not, and its
-#: members' "dominant mode" spreads over ±45 % (poorly identified), which a scan would let
-#: swallow a real −10 % shift.
-RINGING_ZETA = 0.2
 #: A periodic_time within this fraction of a ringing mode's band must beat the mode's ring
 #: (``_ring_bar``).
 RING_BAND = 0.15
 #: Friction relaxation time constants scanned, s (0: the lag vanishes as the axis stops).
 FRICTION_TAU_S = (0.0, 0.03, 0.1, 0.2, 0.3, 0.5, 1e6)
-
-
-@dataclass(frozen=True)
-class AxisPhysics:
-    """What the diagnosis knows of one axis.
-
-    Attributes:
-        mean: (n,) the twin's mean impulse response, unit DC gain.
-        factor: (n, r) factor of its covariance (the baseline's directions), may be (n, 0).
-        mode_hz: the dominant mode of ``mean``.
-        shifted: f1 -> (n,) the response with the dominant mode at f1 as a mass change moves
-            it (modal physics), or None (then only the frequency-rescaled form is tried).
-        force: (n,) response of the axis to a force on its carriage, unit DC gain: the modes
-            without the residues' damping zeros (b1 = 0, no direct part), or None.
-    """
-
-    mean: np.ndarray
-    factor: np.ndarray
-    mode_hz: float
-    shifted: Callable[[float], np.ndarray] | None = None
-    force: np.ndarray | None = None
-    mode_span_hz: tuple[float, float] | None = None
-    mode_zeta: float | None = None
 
 
 @dataclass
@@ -187,74 +157,7 @@ class Diagnosis:
 
 
 # ---------------------------------------------------------------------------------------------
-# physics
-
-
-def nominal_impulse(profile) -> dict:
-    """axis -> (mean (n,), factor (n, r)) of the twin's impulse response, unit DC gain."""
-    out = {}
-    for ax in AXES:
-        ir = axis_impulse(profile, ax)
-        s = float(np.sum(ir.mean))
-        out[ax] = (np.asarray(ir.mean) / s, np.asarray(ir.factor) / s)
-    return out
-
-
-def axis_physics(profile) -> dict:
-    """axis -> AxisPhysics of a profile (the twin's physics, module docstring 1)."""
-    imp = nominal_impulse(profile)
-    out = {}
-    for ax in AXES:
-        mean, L = imp[ax]
-        shifted = None
-        if profile.twin.physics == "modal":
-            fits = axis_modal(profile, ax)
-            mm = fits.mean_model()
-            dom = mm.dominant
-            f_dom = float(mm.freq_hz[dom])
-            ts, n = profile.ts_s, mean.size
-            # the members' mean response with the representative model's dominant mode moved:
-            # h̄ − h_mm(f_dom) + h_mm(f1), exact for the representative model, cached per f1
-            h_mm = mm.impulse(ts, n)
-            cache = {}
-
-            def shifted(f1, mm=mm, dom=dom, f_dom=f_dom, ts=ts, n=n, h_mm=h_mm, mean=mean,
-                        cache=cache):
-                key = round(float(f1), 6)
-                if key not in cache:
-                    h = mean - h_mm / np.sum(h_mm) + mm.mode_shifted(dom, f1 / f_dom).impulse(ts, n) / np.sum(h_mm)
-                    cache[key] = h / np.sum(h)
-                return cache[key]
-
-            mode = f_dom
-            force = _force_response(fits.mean_model(), ts, n)
-            # the members' own dominant modes: how far the known uncertainty moves it
-            # (the same mode in each: members are fitted from the mean's model, mode by mode;
-            # which mode is largest may differ between members of two near-equal modes)
-            doms = [float(ft.model.freq_hz[dom]) if ft.model.freq_hz.size == mm.freq_hz.size
-                    else float(ft.model.freq_hz[np.argmin(np.abs(ft.model.freq_hz - f_dom))])
-                    for ft in fits.fits]
-            span = (min(doms), max(doms)) if mm.damping[dom] < RINGING_ZETA else None
-            zeta = float(mm.damping[dom])
-        else:
-            mode = fx.dominant_mode_hz(mean, profile.ts_s)
-            force = None
-            span = zeta = None
-        out[ax] = AxisPhysics(mean=mean, factor=L, mode_hz=mode, shifted=shifted, force=force,
-                              mode_span_hz=span, mode_zeta=zeta)
-    return out
-
-
-def _force_response(model, ts_s: float, n_taps: int):
-    """(n,) unit-DC response of a modal model's modes to a force (module docstring of
-    AxisPhysics), or None when the modes carry no static share."""
-    g = float(np.sum(model.b0))
-    if not np.isfinite(g) or g <= 0.1:
-        return None
-    mf = ModalModel(model.freq_hz, model.damping, np.zeros_like(model.b1_rad_s), model.b0,
-                    lag_s=0.0, dc_gain=g, delay_s=0.0)
-    h = mf.impulse(ts_s, n_taps)
-    return h / np.sum(h)
+# physics (a profile's: twin.physics.axis_physics)
 
 
 def _as_physics(impulse, ts_s) -> dict:

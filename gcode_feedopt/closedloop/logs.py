@@ -73,9 +73,9 @@ from ..identify.excitation import GENERATORS, duration_s, sampled_accel
 from ..identify.raw import analyse_raw, check_clipping, resample_uniform
 from ..identify.readers import read_raw
 from ..twin.features import n_features
+from ..twin.physics import nominal_impulse
 from ..vm.log import read_log
 from ..vm.plant import respond
-from .diagnose import nominal_impulse
 
 #: Observer bandwidth, Hz (paper Sec. 6.1.1).
 OBSERVER_HZ = 15.0

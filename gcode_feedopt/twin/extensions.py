@@ -231,7 +231,6 @@ def _column(cmd: np.ndarray, axes, axis):
 
 
 def _force_h(profile, axis):
-    # cycle: closedloop.diagnose imports this module (axis_physics belongs in twin/, issue 17)
-    from ..closedloop.diagnose import axis_physics
+    from .physics import axis_physics
 
     return axis_physics(profile)[axis].force

@@ -11,7 +11,8 @@ simulated elsewhere) is in test_diagnose_bench_a.py.
 import numpy as np
 import pytest
 
-from gcode_feedopt.closedloop.diagnose import KINDS, axis_physics, diagnose_arrays
+from gcode_feedopt.closedloop.diagnose import KINDS, diagnose_arrays
+from gcode_feedopt.twin.physics import axis_physics
 from gcode_feedopt.closedloop.motion import point_to_point
 from gcode_feedopt.profile import load_profile
 from gcode_feedopt.vm import effects as fx

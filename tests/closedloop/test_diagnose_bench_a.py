@@ -10,7 +10,8 @@ tie carrying both parameters.
 
 import pytest
 
-from gcode_feedopt.closedloop.diagnose import axis_physics, diagnose_arrays
+from gcode_feedopt.closedloop.diagnose import diagnose_arrays
+from gcode_feedopt.twin.physics import axis_physics
 from tests.conftest import bench_a_log
 
 #: the parameter that sizes each kind (labels.json's names), and the others checked

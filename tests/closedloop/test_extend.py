@@ -6,7 +6,7 @@ import pytest
 from click.testing import CliRunner
 
 from gcode_feedopt.cli import cli
-from gcode_feedopt.closedloop.diagnose import nominal_impulse
+from gcode_feedopt.twin.physics import nominal_impulse
 from gcode_feedopt.closedloop.extend import extend_profile
 from gcode_feedopt.profile import load_profile
 from gcode_feedopt.profile.io import save_profile

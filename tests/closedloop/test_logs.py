@@ -134,7 +134,7 @@ def test_log_cut_mid_motion_is_used(tmp_path):
     """A log cut at both ends while the command moves (as a user's logger gives it): used, one
     warning per cut edge; the warm-up is the twin's memory (n_taps + max(n2, n3)); from there
     on the physics' prediction is the one the whole log gives (the twin is causal)."""
-    from gcode_feedopt.closedloop.diagnose import nominal_impulse
+    from gcode_feedopt.twin.physics import nominal_impulse
     from gcode_feedopt.closedloop.logs import twin_memory
     from gcode_feedopt.errors import LogWarning
     from gcode_feedopt.vm.plant import respond
