@@ -72,7 +72,7 @@ def pipeline_case(src: pathlib.Path, machine: str, **opts) -> dict:
 def dip_schedule(sched, period_s: float = 3.7, depth: float = 0.45):
     """``sched`` time-warped: the path is followed at w(τ) times the planned rate, with
     w = 1 − depth·max(0, sin 2πτ/period)^4 (dips of ``depth`` every ``period_s``)."""
-    from gcode_feedopt.plan.schedule import Schedule
+    from gcode_feedopt.gcode.schedule import Schedule
 
     ts = sched.ts_s
     s = sched.s_mm

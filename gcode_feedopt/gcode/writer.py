@@ -37,7 +37,7 @@ from decimal import Decimal
 import numpy as np
 
 from .. import __version__
-from ..plan.schedule import Schedule
+from .schedule import Schedule
 from ..vm.firmware import override_restore_texts
 from .metadata import MetadataUpdater
 from .path import SEG_LINE, Path

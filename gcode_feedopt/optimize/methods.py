@@ -27,9 +27,9 @@ import numpy as np
 from scipy.stats import norm
 
 from ..errors import FeedOptError
+from ..gcode.schedule import Schedule
 from ..plan.kinematic import (effective_limits, plan_kinematic, plan_trapezoids, planner_limits,
                               segment_plan)
-from ..plan.schedule import Schedule
 from ..twin.extensions import extra_variance_mm2, motion_offsets
 from ..twin.model import axis_noise_mm, axis_prior, learned_speed_noise_s, twin_impulse
 from ..vm.metrics import evaluate

@@ -1,5 +1,1 @@
-"""Planners: turn a Path into a Schedule (path coordinate sampled at Ts)."""
-
-from .schedule import Schedule
-
-__all__ = ["Schedule"]
+"""Planners: turn a Path into a Schedule (gcode.schedule; path coordinate sampled at Ts)."""

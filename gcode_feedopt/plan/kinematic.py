@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..gcode.path import SEG_LINE, Path
-from .schedule import Schedule
+from ..gcode.schedule import Schedule
 from .trapezoid import (Trapezoids, forward_backward, junction_limits, klipper_junction_v2,
                         klipper_lookahead, sample, trapezoids)
 

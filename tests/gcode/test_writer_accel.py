@@ -15,7 +15,7 @@ from gcode_feedopt.gcode.writer import T_ACCEL, T_ORIG, write
 from gcode_feedopt.optimize.methods import _segment_plan
 from gcode_feedopt.optimize.slowdown import PlanGrid, _cell_peaks
 from gcode_feedopt.plan.kinematic import effective_limits, planner_limits, writer_accel
-from gcode_feedopt.plan.schedule import Schedule
+from gcode_feedopt.gcode.schedule import Schedule
 from gcode_feedopt.profile import load_profile
 from gcode_feedopt.vm import firmware
 

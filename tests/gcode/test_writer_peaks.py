@@ -14,7 +14,7 @@ from gcode_feedopt.gcode.verify import verify
 from gcode_feedopt.gcode.writer import write
 from gcode_feedopt.pipeline import path_for
 from gcode_feedopt.plan.kinematic import plan_kinematic, writer_accel
-from gcode_feedopt.plan.schedule import Schedule
+from gcode_feedopt.gcode.schedule import Schedule
 from gcode_feedopt.profile import load_profile
 from gcode_feedopt.vm import firmware
 
