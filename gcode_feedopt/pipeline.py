@@ -281,7 +281,7 @@ def optimize_file(in_path, out_path, profile, opts: Options, progress=None) -> R
     with gc_paused():
         t0 = time.perf_counter()
         say("writing")
-        cells = sched.info.get("cells")
+        cells = sched.cells
         # the X/Y acceleration the plan chose (optimize.methods.search_acceleration) is written
         # as --amax would be: the file's own settings clamped to it, M201 before the first move
         amax_w = sched.info.get("accel_chosen_mm_s2") or opts.amax_mm_s2

@@ -37,11 +37,11 @@ from decimal import Decimal
 import numpy as np
 
 from .. import __version__
-from .schedule import Schedule
 from ..vm.firmware import override_restore_texts
 from .metadata import MetadataUpdater
 from .path import SEG_LINE, Path
 from .reader import IDENT_PREFIX, Program
+from .schedule import Schedule, SlowdownCells
 
 #: Relative speed band a sub-move may span (the F written is its average speed).
 SPEED_TOL = 0.05
@@ -717,7 +717,7 @@ def plan_peaks(schedule: Schedule, accel_mm_s2: np.ndarray | None, n: int) -> np
     """(N,) the peak speed of every segment the plan made one firmware trapezoid at the
     acceleration the firmware will use (``accel_mm_s2``) between junctions that F does not
     set (plan.kinematic.segment_plan ``exact``), NaN elsewhere; None when the plan does not
-    say (``schedule.info["segment_plan"]``: kinematic and slow-down plans do).
+    say (``schedule.segment_plan``: kinematic and slow-down plans do).
 
     One line with F = that peak is what the firmware plans: the same entry and exit junctions
     (its look-ahead is the plan's), the same acceleration and the same top speed. Read from the
@@ -725,35 +725,36 @@ def plan_peaks(schedule: Schedule, accel_mm_s2: np.ndarray | None, n: int) -> np
     up to a·Ts/2 where the segment peaks between samples), and a short segment that starts or
     ends near rest fails the speed-band check of :func:`_firmware_band` and is split into a
     staircase of lines: both make the written file slower than the plan."""
-    sp = schedule.info.get("segment_plan")
+    sp = schedule.segment_plan
     if sp is None or accel_mm_s2 is None:
         return None
-    peak = np.asarray(sp["peak_mm_s"], float)
-    acc = np.asarray(sp["accel_mm_s2"], float)
+    peak = np.asarray(sp.peak_mm_s, float)
+    acc = np.asarray(sp.accel_mm_s2, float)
     fw = np.asarray(accel_mm_s2, float)
     if peak.shape != (n,) or fw.shape != (n,):
         return None
     ok = ((np.abs(acc - fw) <= PEAK_ACCEL_MATCH * fw) & (peak > 0) & np.isfinite(peak)
-          & np.asarray(sp["exact"], bool))
+          & np.asarray(sp.exact, bool))
     return np.where(ok, peak, np.nan)
 
 
-def _cell_runs(cells: dict, k: int, lo: float, hi: float):
-    """Runs of equal (acceleration, scale) among the planning cells of segment k:
-    list of (s_start, s_end, key) with key None where the cells are not slowed; the feed cap
-    of each run (mm/s); and each run's peak speed in the plan (mm/s; None when ``cells`` has no
-    ``vpeak_mm_s`` or classic jerk sets a junction at either end of the segment)."""
-    c0, c1 = cells["range"][k], cells["range"][k + 1]
-    peaks = cells.get("vpeak_mm_s")
-    jerk = cells.get("jerk_junction")
+def _cell_runs(cells: SlowdownCells, cell_range: list, k: int, lo: float, hi: float):
+    """Runs of equal (acceleration, scale) among the planning cells of segment k (cells
+    ``cell_range[k]`` to ``cell_range[k + 1]``): list of (s_start, s_end, key) with key None
+    where the cells are not slowed; the feed cap of each run (mm/s); and each run's peak speed
+    in the plan (mm/s; None when ``cells`` has no ``vpeak_mm_s`` or classic jerk sets a
+    junction at either end of the segment)."""
+    c0, c1 = cell_range[k], cell_range[k + 1]
+    peaks = cells.vpeak_mm_s
+    jerk = cells.jerk_junction
     if jerk is not None and (jerk[c0] or jerk[c1]):
         peaks = None  # classic jerk at an end: the junction depends on F (plan_peaks)
     runs, vcap, vpk = [], [], []
     for c in range(c0, c1):
-        r = float(cells["scale"][c])
-        key = None if r >= SCALE_OVERRIDE_BELOW else (math.floor(float(cells["accel_mm_s2"][c])), r)
-        a, b = float(cells["s0_mm"][c]), float(cells["s0_mm"][c + 1])
-        vc = float(cells["vcap_mm_s"][c])
+        r = float(cells.scale[c])
+        key = None if r >= SCALE_OVERRIDE_BELOW else (math.floor(float(cells.accel_mm_s2[c])), r)
+        a, b = float(cells.s0_mm[c]), float(cells.s0_mm[c + 1])
+        vc = float(cells.vcap_mm_s[c])
         pk = math.inf if peaks is None else float(peaks[c])
         if runs and (runs[-1][2] == key or (key is not None and runs[-1][2] is not None
                                             and runs[-1][2][0] == key[0])):
@@ -769,6 +770,17 @@ def _cell_runs(cells: dict, k: int, lo: float, hi: float):
     runs[0] = (lo, runs[0][1], runs[0][2])
     runs[-1] = (runs[-1][0], hi, runs[-1][2])
     return runs, vcap, (None if peaks is None else vpk)
+
+
+def _slowed_segments(cells: SlowdownCells, n: int):
+    """(N,) bool, the segments with a slowed cell (scale below SCALE_OVERRIDE_BELOW; None when
+    no segment has one), and the first cell of every segment, (N+1,) list (:func:`_cell_runs`)."""
+    parent = np.asarray(cells.parent)
+    cell_range = np.searchsorted(parent, np.arange(n + 1)).tolist()
+    hit = np.asarray(cells.scale) < SCALE_OVERRIDE_BELOW
+    slowed = np.zeros(n, bool)
+    slowed[parent[hit]] = True
+    return (slowed if slowed.any() else None), cell_range
 
 
 def _run_pieces(s, ts, runs, lo, L, ta, tb, min_dt, accel_default, vcap, vpk=None):
@@ -823,14 +835,14 @@ def _time_at(s, ts, level):
 
 
 def write(program: Program, path: Path, schedule: Schedule, profile, *, mode: str = "refeed",
-          accel_mm_s2: np.ndarray | None = None, fast: bool = True, cells: dict | None = None,
+          accel_mm_s2: np.ndarray | None = None, fast: bool = True,
+          cells: SlowdownCells | None = None,
           settings=None, clamp=None, feed_cap_mm_s: np.ndarray | None = None,
           run_settings: str = "", override=None) -> WriteResult:
     """Write the re-timed G-code (see module docstring).
 
-    ``cells`` (a slow-down plan's ``info["cells"]``: ``s0_mm`` (C+1,), ``scale`` (C,),
-    ``accel_mm_s2`` and ``vcap_mm_s`` (C,) the plan's limits in each cell, ``parent`` (C,)
-    segment of each cell) with ``settings``
+    ``cells`` (a slow-down plan's ``schedule.cells``, gcode.schedule.SlowdownCells: each
+    cell's boundaries, segment, scale and the plan's limits in it) with ``settings``
     (vm.firmware.accel_settings of the program): moves through slowed cells are cut at the
     cell runs and the firmware is told each run's acceleration (:class:`_AccelState`), in
     re-feedrated mode.
@@ -889,21 +901,14 @@ def write(program: Program, path: Path, schedule: Schedule, profile, *, mode: st
         one_speed = one_speed.tolist()
     if peaks is not None:
         peaks = peaks.tolist()
-    acc_state = None
-    slowed = None
+    acc_state = slowed = cell_range = None
     if cells is not None and settings is not None and not sampled:
-        parent = np.asarray(cells["parent"])
-        cells = dict(cells, range=np.searchsorted(parent, np.arange(path.n_segments + 1)).tolist())
-        hit = np.asarray(cells["scale"]) < SCALE_OVERRIDE_BELOW
-        slowed = np.zeros(path.n_segments, bool)
-        slowed[parent[hit]] = True
-        if slowed.any():
+        slowed, cell_range = _slowed_segments(cells, path.n_segments)
+        if slowed is not None:
             acc_state = _AccelState(settings)
             if one_speed is not None:
                 for k in np.flatnonzero(slowed).tolist():
                     one_speed[k] = math.nan
-        else:
-            slowed = None
     last_new = -1  # index in ``out`` after the last re-timed line
     clamp_state = _ClampState(clamp) if clamp is not None else None
     last_mi = -1  # the last move (for the clamp's restore)
@@ -966,7 +971,7 @@ def write(program: Program, path: Path, schedule: Schedule, profile, *, mode: st
             retime = k is not None and not mv.fixed
             if retime and slowed is not None and slowed[k]:
                 lo, hi = float(path.s0_mm[k]), float(path.s0_mm[k + 1])
-                runs, vcap, vpk = _cell_runs(cells, k, lo, hi)
+                runs, vcap, vpk = _cell_runs(cells, cell_range, k, lo, hi)
                 acc_k = 0.0 if accel_mm_s2 is None else float(accel_mm_s2[k])
                 pieces, first = _run_pieces(s, ts, runs, lo, hi - lo, float(t_start[k]),
                                             float(t_end[k]), min_dt, acc_k, vcap, vpk)

@@ -27,7 +27,7 @@ import numpy as np
 from scipy.stats import norm
 
 from ..errors import FeedOptError
-from ..gcode.schedule import Schedule
+from ..gcode.schedule import Schedule, SegmentPlan, SlowdownCells
 from ..plan.kinematic import (effective_limits, plan_kinematic, plan_trapezoids, planner_limits,
                               segment_plan)
 from ..twin.extensions import extra_variance_mm2, motion_offsets
@@ -116,7 +116,8 @@ def plan_conservative(path, profile, *, tolerance_mm, stringency, plant, vmax_mm
                  "amax_mm_s2": amax * scale, "rms_violation_ratio": r,
                  "violation_budget": budget, "tuning_trials": len(trials),
                  "compute_s": time.perf_counter() - t0})
-    return Schedule(ts_s=sch.ts_s, s_mm=sch.s_mm, method="conservative", info=info)
+    return Schedule(ts_s=sch.ts_s, s_mm=sch.s_mm, method="conservative", info=info,
+                    segment_plan=sch.segment_plan)
 
 
 def make_twin_predictor(profile, method: str, *, learn: bool):
@@ -309,14 +310,14 @@ def plan_offline(path, profile, method: str, *, tolerance_mm: float, stringency:
         "predicted_p95_contour_error_mm":
             float(np.quantile(res.motion_mm[on], 0.95)) if on.any() else 0.0,
         "predicted_bound_mm": res.bound_mm, "_predicted_xy_mm": res.mean_xy_mm,
-        "cells": res.cells, "segment_plan": _segment_plan(res.cells, path.n_segments),
         "vmax_mm_s": vmax,
         "amax_mm_s2": chosen if chosen is not None else min(axis_a["x"], axis_a["y"]),
         "accel_chosen_mm_s2": chosen, "accel_search": [t[:2] for t in tried],
         # the firmware's own plan of the path at F's limits (what the twin's changes are
         # measured against: the report's time split)
         "kinematic_time_s": tried[0][2] if len(tried[0]) > 2 else tried[0][1]})
-    return Schedule(ts_s=profile.ts_s, s_mm=res.s_mm, method=method, info=info)
+    return Schedule(ts_s=profile.ts_s, s_mm=res.s_mm, method=method, info=info,
+                    segment_plan=_segment_plan(res.cells, path.n_segments), cells=res.cells)
 
 
 def scalar_tolerance(seg_tol: np.ndarray) -> float:
@@ -326,14 +327,14 @@ def scalar_tolerance(seg_tol: np.ndarray) -> float:
     return float(finite.min()) if finite.size else 1.0
 
 
-def _segment_plan(cells: dict, n_segments: int) -> dict:
+def _segment_plan(cells: SlowdownCells, n_segments: int) -> SegmentPlan:
     """Each segment's peak speed and acceleration in a slow-down plan (the writer's one line
     per unslowed segment: its cells share one acceleration and meet without a junction rule,
     so the segment is one trapezoid; slowed segments are written from the cells)."""
-    first = np.searchsorted(cells["parent"], np.arange(n_segments + 1))
-    return segment_plan(np.maximum.reduceat(cells["vpeak_mm_s"], first[:-1]),
-                        np.minimum.reduceat(cells["accel_mm_s2"], first[:-1]),
-                        np.asarray(cells["jerk_junction"])[first])
+    first = np.searchsorted(cells.parent, np.arange(n_segments + 1))
+    return segment_plan(np.maximum.reduceat(cells.vpeak_mm_s, first[:-1]),
+                        np.minimum.reduceat(cells.accel_mm_s2, first[:-1]),
+                        np.asarray(cells.jerk_junction)[first])
 
 
 def plan_mpc(path, profile, predictor, *, method, tolerance_mm, stringency, vmax_mm_s=None,

@@ -68,6 +68,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..gcode.schedule import SlowdownCells
 from ..plan.kinematic import PlannerLimits
 from ..procs import worker_pool
 from ..plan.trapezoid import forward_backward, peak_speed, trapezoids
@@ -140,9 +141,9 @@ class SlowdownResult:
             chance bound (0 on unconstrained samples), mm.
         motion_mm: (K,) the part of the bound the motion causes (|μ_ε| or the overshoot
             excursion; the rest is Φ⁻¹(η)σ_ε), mm.
-        cells: the grid for the writer: ``s0_mm`` (M+1,) cell boundaries, ``parent`` (M,)
-            segment of each cell, ``scale`` (M,), ``accel_mm_s2`` and ``vcap_mm_s`` (M,) the
-            plan's acceleration and feed cap in each cell.
+        cells: the grid for the writer (gcode.schedule.SlowdownCells: cell boundaries,
+            segment, scale, the plan's acceleration, feed cap and peak speed of each cell, and
+            F's classic-jerk junctions).
     """
 
     s_mm: np.ndarray
@@ -151,7 +152,7 @@ class SlowdownResult:
     mean_xy_mm: np.ndarray
     bound_mm: np.ndarray
     motion_mm: np.ndarray
-    cells: dict | None = None
+    cells: SlowdownCells | None = None
 
 
 class PlanGrid:
@@ -966,9 +967,9 @@ def plan_slowdown(path, limits: PlannerLimits, evaluator, *, ts_s: float,
         "compute_s": time.perf_counter() - t_start,
         "settle_s": time.perf_counter() - t_merge,
     })
-    cells = {"s0_mm": grid.s0_mm, "parent": grid.parent, "scale": state.scale,
-             "accel_mm_s2": grid.accel_mm_s2 * state.scale * state.scale,
-             "vcap_mm_s": grid.vcap_mm_s * state.scale,
-             "vpeak_mm_s": _cell_peaks(grid, state), "jerk_junction": grid.jerk_junction}
+    cells = SlowdownCells(s0_mm=grid.s0_mm, parent=grid.parent, scale=state.scale,
+                          accel_mm_s2=grid.accel_mm_s2 * state.scale * state.scale,
+                          vcap_mm_s=grid.vcap_mm_s * state.scale,
+                          vpeak_mm_s=_cell_peaks(grid, state), jerk_junction=grid.jerk_junction)
     return SlowdownResult(s_mm=s, scale=state.scale, info=info, mean_xy_mm=mean.T,
                           bound_mm=b, motion_mm=out["mot"], cells=cells)

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..gcode.path import SEG_LINE, Path
-from ..gcode.schedule import Schedule
+from ..gcode.schedule import Schedule, SegmentPlan
 from .trapezoid import (Trapezoids, forward_backward, junction_limits, klipper_junction_v2,
                         klipper_lookahead, sample, trapezoids)
 
@@ -241,7 +241,7 @@ def plan_trapezoids(path: Path, *, vmax_mm_s: float, axis_vmax_mm_s: dict,
 
 
 def segment_plan(peak_mm_s: np.ndarray, accel_mm_s2: np.ndarray,
-                 jerk_junction: np.ndarray | None) -> dict:
+                 jerk_junction: np.ndarray | None) -> SegmentPlan:
     """What the writer needs to write a planned segment as one line at its peak speed
     (gcode.writer.plan_peaks): the peak and acceleration of every segment's trapezoid, and
     ``exact`` (N,): the firmware's junction speeds at both ends do not depend on F. Classic
@@ -251,8 +251,8 @@ def segment_plan(peak_mm_s: np.ndarray, accel_mm_s2: np.ndarray,
     n = peak_mm_s.size
     jerk = (np.zeros(n + 1, bool) if jerk_junction is None
             else np.asarray(jerk_junction, bool))
-    return {"peak_mm_s": peak_mm_s, "accel_mm_s2": accel_mm_s2,
-            "exact": ~(jerk[:-1] | jerk[1:])}
+    return SegmentPlan(peak_mm_s=peak_mm_s, accel_mm_s2=accel_mm_s2,
+                       exact=~(jerk[:-1] | jerk[1:]))
 
 
 def effective_limits(profile, vmax_mm_s: float | None = None, amax_mm_s2: float | None = None):
@@ -291,9 +291,9 @@ def plan_kinematic(path: Path, profile, *, use_slicer_feed: bool = False,
         feed_scale: multiplies the slicer's F when ``use_slicer_feed``.
 
     Returns:
-        Schedule with ``info``: ``trapezoids`` (the phase plan), ``segment_start_s`` and
-        ``segment_end_s`` (N,) motion start/end times, ``segment_plan`` (every segment is one
-        trapezoid: its peak speed and acceleration, for the writer).
+        Schedule with ``segment_plan`` (every segment is one trapezoid: its peak speed and
+        acceleration, for the writer) and ``info``: ``trapezoids`` (the phase plan),
+        ``segment_start_s`` and ``segment_end_s`` (N,) motion start/end times.
     """
     vmax, axis_v, axis_a = effective_limits(profile, vmax_mm_s, amax_mm_s2)
     amax = axis_a["x"]
@@ -305,7 +305,6 @@ def plan_kinematic(path: Path, profile, *, use_slicer_feed: bool = False,
     start = tr.t0_s[:-1]
     return Schedule(ts_s=profile.ts_s, s_mm=s, method="kinematic",
                     info={"trapezoids": tr, "segment_start_s": start,
-                          "segment_plan": segment_plan(tr.vc_mm_s, tr.accel_mm_s2,
-                                                       lim.jerk_junction),
                           "segment_end_s": start + tr.motion_s, "plan_time_s": tr.duration_s,
-                          "vmax_mm_s": vmax, "amax_mm_s2": amax})
+                          "vmax_mm_s": vmax, "amax_mm_s2": amax},
+                    segment_plan=segment_plan(tr.vc_mm_s, tr.accel_mm_s2, lim.jerk_junction))

@@ -10,12 +10,12 @@ import pytest
 
 from gcode_feedopt.gcode.path import build_path
 from gcode_feedopt.gcode.reader import read_program
+from gcode_feedopt.gcode.schedule import Schedule, SlowdownCells
 from gcode_feedopt.gcode.verify import verify
 from gcode_feedopt.gcode.writer import T_ACCEL, T_ORIG, write
 from gcode_feedopt.optimize.methods import _segment_plan
 from gcode_feedopt.optimize.slowdown import PlanGrid, _cell_peaks
 from gcode_feedopt.plan.kinematic import effective_limits, planner_limits, writer_accel
-from gcode_feedopt.gcode.schedule import Schedule
 from gcode_feedopt.profile import load_profile
 from gcode_feedopt.vm import firmware
 
@@ -65,14 +65,17 @@ def slowed_plan(prog, path, profile, scale_of, peaks=True):
     for p, sp in enumerate(ss):
         parts += [sp, np.full(grid.piece_hold[p], sp[-1])]
     s = np.concatenate(parts)
-    cells = {"s0_mm": grid.s0_mm, "parent": grid.parent, "scale": scale,
-             "accel_mm_s2": grid.accel_mm_s2 * scale * scale, "vcap_mm_s": grid.vcap_mm_s * scale}
-    info = {}
+    cells = SlowdownCells(s0_mm=grid.s0_mm, parent=grid.parent, scale=scale,
+                          accel_mm_s2=grid.accel_mm_s2 * scale * scale,
+                          vcap_mm_s=grid.vcap_mm_s * scale)
+    sp = None
     if peaks:  # what plan_slowdown and plan_offline hand the writer
-        cells.update(vpeak_mm_s=_cell_peaks(grid, SimpleNamespace(v0=v0, scale=scale)),
-                     jerk_junction=grid.jerk_junction)
-        info["segment_plan"] = _segment_plan(cells, path.n_segments)
-    return Schedule(ts_s=profile.ts_s, s_mm=s, method="pidd", info=info), cells, fw_limits
+        cells = dataclasses.replace(
+            cells, vpeak_mm_s=_cell_peaks(grid, SimpleNamespace(v0=v0, scale=scale)),
+            jerk_junction=grid.jerk_junction)
+        sp = _segment_plan(cells, path.n_segments)
+    return (Schedule(ts_s=profile.ts_s, s_mm=s, method="pidd", segment_plan=sp), cells,
+            fw_limits)
 
 
 def write_both(data, profile, scale_of, peaks=True):

@@ -14,7 +14,6 @@ from gcode_feedopt.gcode.verify import verify
 from gcode_feedopt.gcode.writer import write
 from gcode_feedopt.pipeline import path_for
 from gcode_feedopt.plan.kinematic import plan_kinematic, writer_accel
-from gcode_feedopt.gcode.schedule import Schedule
 from gcode_feedopt.profile import load_profile
 from gcode_feedopt.vm import firmware
 
@@ -47,8 +46,7 @@ def written_time(data: bytes, profile, keep_peaks: bool):
     limits = firmware.move_limits(prog, profile)
     sched = plan_kinematic(path, profile, fw_limits=limits)
     if not keep_peaks:
-        sched = Schedule(ts_s=sched.ts_s, s_mm=sched.s_mm, method=sched.method,
-                         info={k: v for k, v in sched.info.items() if k != "segment_plan"})
+        sched = dataclasses.replace(sched, segment_plan=None)
     res = write(prog, path, sched, profile, accel_mm_s2=writer_accel(path, profile, limits))
     out = verify(prog, res, flavour=fw.flavour, g91_relative_e=fw.g91_relative_e)
     return sched.duration_s, firmware.estimate_time_s(out, profile), res, path

@@ -66,7 +66,7 @@ def test_default_never_faster_than_sliced(src, method, tmp_path):
     v = np.diff(sched.s_mm) / sched.ts_s
     assert np.all(v <= top * (1 + 1e-6) + 1e-6)
     res = write(program, path, sched, PROFILE, accel_mm_s2=writer_accel(path, PROFILE, fw, None),
-                cells=sched.info.get("cells"),
+                cells=sched.cells,
                 feed_cap_mm_s=planning_path(path, opts.speed, PROFILE).feed_mm_s,
                 settings=firmware.accel_settings(program, PROFILE,
                                                  firmware.accel_clamp(program, PROFILE,
