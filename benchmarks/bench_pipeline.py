@@ -1,11 +1,14 @@
 """Whole-pipeline benchmark (issue 9): per-stage wall time and peak memory per case.
 
 Cases: the Cura Benchy (95,520 moves), the Benchy repeated 2x and 4x (whole files
-concatenated: each copy homes and heats again, which the reader accepts), and the butterfly.
+concatenated: each copy homes and heats again, which the reader accepts), the butterfly, and
+(``arcwelder``, not in the default list: minutes) the ArcWelder Benchy, whose 11.6 h at its
+cooling speeds are 20.6 M samples of plan.
 Each case runs `gcode-feedopt` in a fresh process (`--dry-run --report`), so the peak RSS is
 that run's own (resource.getrusage of the child).
 
     python benchmarks/bench_pipeline.py [--method kinematic] [--cases benchy,benchy2,benchy4,butterfly]
+    python benchmarks/bench_pipeline.py --method pidd --cases arcwelder
     python benchmarks/bench_pipeline.py --write   # also write benchmarks/RESULTS.md
 """
 
@@ -28,7 +31,8 @@ STAGES = ("parse", "path", "plan", "write", "verify", "firmware", "execute")
 
 def case_files(tmp: pathlib.Path) -> dict[str, pathlib.Path]:
     data = BENCHY.read_bytes()
-    out = {"benchy": BENCHY, "butterfly": REPO / "sample_gcode" / "butterfly.gcode"}
+    out = {"benchy": BENCHY, "butterfly": REPO / "sample_gcode" / "butterfly.gcode",
+           "arcwelder": BENCHY.parent / "slic3rpe-arcwelder_3dbenchy-arcs.gcode"}
     for k in (2, 4):
         p = tmp / f"benchy_x{k}.gcode"
         p.write_bytes(data * k)

@@ -334,8 +334,9 @@ class TwinEvaluator:
 
         The motion part is the distance from the predicted position to the commanded path
         near it, as the virtual machine's metric measures it (vm.metrics: ±W thinned vertices
-        of the plan's own commanded samples ``path_xy`` (N, 2); ``idx`` (K,) the samples'
-        indices into it). The paper's projection on the normal at the commanded point (Eq. 6)
+        of the plan's own commanded samples ``path_xy`` (N, 2), or a function that makes them
+        (called only when a sample needs measuring); ``idx`` (K,) the samples' indices into
+        it). The paper's projection on the normal at the commanded point (Eq. 6)
         misses the path curving away from a position that also lags along it, and running on
         past a corner (on a Benchy plan: 0.14 mm where the projection said 0.06). The
         distance is at most |command − position| (the command is on the path), which picks
@@ -362,7 +363,9 @@ class TwinEvaluator:
             cand = np.flatnonzero(on & (dev + unc > self.tol * DISTANCE_CHECK))
             if cand.size:
                 W = max(1, int(round(CONTOUR_WINDOW_S / self.ts_s)))
-                d = distance_to_polyline_window(mean[:, cand].T, path_xy, W, index=idx[cand])
+                poly = path_xy() if callable(path_xy) else path_xy
+                d = distance_to_polyline_window(mean[:, cand].T, poly, W, index=idx[cand])
+                del poly
                 over = np.zeros(on.size, bool)
                 over[kk] = True  # the overshoot rows stay where they say more
                 motion[cand] = np.where(over[cand], np.maximum(motion[cand], d), d)
@@ -698,7 +701,7 @@ class _State:
             ref = geo["cmd"][np.concatenate([[0], np.cumsum(w_hi - w_lo)[:-1]])][owner]
         mu, sd = self.ev.predict(geo["cmd"], ref)
         vals = self.ev.bound(geo, mu, sd, idx=idx,
-                             path_xy=np.concatenate([g["cmd"] for g in self.geo]))
+                             path_xy=lambda: np.concatenate([g["cmd"] for g in self.geo]))
         vals = vals + (self.ev.rest_error(geo, idx),)
         fill = bad[idx]
         tgt = idx[fill]
@@ -915,7 +918,9 @@ def plan_slowdown(path, limits: PlannerLimits, evaluator, *, ts_s: float,
                 before = [np.zeros(grid.lead_hold + 1)] + [
                     np.concatenate([ss[p], np.full(grid.piece_hold[p], grid.s0_mm[grid.piece_cell[p + 1]])])
                     for p in range(max(0, p0 - mem), p0)]
-                history[p0] = np.concatenate(before)[-mem:]
+                # a copy: a view would keep the whole concatenation (up to ``mem`` pieces)
+                # alive, 3 GB over the ArcWelder Benchy's groups
+                history[p0] = np.concatenate(before)[-mem:].copy()
             _CTX = {"grid": grid, "settings": st, "history": history, "path": path,
                     "evaluator": evaluator}
             try:

@@ -51,6 +51,8 @@ KEEP_TURN_DEG = 10.0
 
 #: Rows per chunk in the windowed distance search (bounds memory to a few tens of MB).
 _CHUNK = 1 << 18
+#: Segments per chunk when thinning a polyline (a few tens of MB of temporaries).
+_THIN_CHUNK = 1 << 20
 
 #: E must grow by more than this between two samples for a move to count as extruding, mm
 #: (well below one sample of the slowest extrusion, far above float round-off of E ~ 1e4 mm).
@@ -64,26 +66,48 @@ def thin_polyline(poly_xy: np.ndarray, min_step_mm: float = MIN_STEP_MM,
 
     Returns the kept vertex indices (n,) and, for every original vertex, the index into them of
     the last kept vertex at or before it (K,)."""
-    Q = np.asarray(poly_xy, dtype=float)
+    keep = _thin_mask(np.asarray(poly_xy, dtype=float), min_step_mm, keep_turn_deg)
+    return np.flatnonzero(keep), np.cumsum(keep) - 1
+
+
+def _thin_mask(Q: np.ndarray, min_step_mm: float, keep_turn_deg: float = KEEP_TURN_DEG,
+               chunk: int = _THIN_CHUNK) -> np.ndarray:
+    """(K,) bool, the vertices :func:`thin_polyline` keeps, computed ``chunk`` segments at a
+    time: the optimizer thins a whole file's commanded samples (20 M on the ArcWelder
+    Benchy) at every check, and whole-length temporaries took gigabytes. Bit-identical to one
+    pass: the arc length is accumulated in the same order (each chunk's cumulative sum starts
+    from the last one's end) and a turn is measured between consecutive moving segments
+    whichever chunk they fall in."""
     K = Q.shape[0]
     if K <= 2 or min_step_mm <= 0:
-        return np.arange(K), np.arange(K)
-    d = np.diff(Q, axis=0)
-    seg = np.hypot(d[:, 0], d[:, 1])
-    cum = np.concatenate([[0.0], np.cumsum(seg)])
+        return np.ones(K, bool)
     keep = np.zeros(K, bool)
     keep[0] = keep[-1] = True
-    bucket = np.floor(cum / min_step_mm)
-    keep[1:] |= bucket[1:] > bucket[:-1]
-    # corners: the turn between the moves into and out of a vertex (zero moves skipped)
-    moving = np.flatnonzero(seg > 0)
-    if moving.size > 1:
-        a, b = d[moving[:-1]], d[moving[1:]]
-        cos = np.sum(a * b, axis=1) / (seg[moving[:-1]] * seg[moving[1:]])
-        turn = cos < np.cos(np.radians(keep_turn_deg))
-        keep[moving[1:][turn]] = True  # the vertex where the outgoing move starts
-    kept = np.flatnonzero(keep)
-    return kept, np.searchsorted(kept, np.arange(K), side="right") - 1
+    cos_limit = np.cos(np.radians(keep_turn_deg))
+    cum0 = 0.0
+    last = None  # (dx, dy, length, index) of the last moving segment so far
+    for c0 in range(0, K - 1, chunk):
+        c1 = min(c0 + chunk, K - 1)  # segments c0 .. c1−1 (segment j joins vertex j and j+1)
+        dx, dy = np.diff(Q[c0:c1 + 1, 0]), np.diff(Q[c0:c1 + 1, 1])
+        seg = np.hypot(dx, dy)
+        # buckets of min_step_mm along the path: a vertex in a new bucket is kept
+        bucket = np.cumsum(np.concatenate([[cum0], seg]))
+        cum0 = float(bucket[-1])
+        np.divide(bucket, min_step_mm, out=bucket)
+        np.floor(bucket, out=bucket)
+        keep[c0 + 1:c1 + 1] |= bucket[1:] > bucket[:-1]
+        # corners: the turn between the moves into and out of a vertex (zero moves skipped)
+        mv = np.flatnonzero(seg > 0)
+        mdx, mdy, mseg, at = dx[mv], dy[mv], seg[mv], mv + c0
+        if last is not None:
+            mdx, mdy = np.concatenate([[last[0]], mdx]), np.concatenate([[last[1]], mdy])
+            mseg, at = np.concatenate([[last[2]], mseg]), np.concatenate([[last[3]], at])
+        if mdx.size > 1:
+            cos = (mdx[:-1] * mdx[1:] + mdy[:-1] * mdy[1:]) / (mseg[:-1] * mseg[1:])
+            keep[at[1:][cos < cos_limit]] = True  # the vertex where the outgoing move starts
+        if mdx.size:
+            last = (mdx[-1], mdy[-1], mseg[-1], at[-1])
+    return keep
 
 
 def distance_to_polyline_window(points_xy: np.ndarray, poly_xy: np.ndarray, window: int,
@@ -104,9 +128,9 @@ def distance_to_polyline_window(points_xy: np.ndarray, poly_xy: np.ndarray, wind
     """
     P = np.asarray(points_xy, dtype=float)
     Q = np.asarray(poly_xy, dtype=float)
-    kept, at = thin_polyline(Q, min_step_mm)
+    kept = np.flatnonzero(_thin_mask(Q, min_step_mm))
     idx = np.arange(P.shape[0]) if index is None else np.asarray(index, dtype=np.int64)
-    idx = at[idx]
+    idx = np.searchsorted(kept, idx, side="right") - 1  # the last kept vertex at or before
     Q = Q[kept]
     M, K = P.shape[0], Q.shape[0]
     if K == 1:

@@ -167,3 +167,40 @@ def test_thinning_keeps_corners_and_both_ends():
     assert 200 in kept  # the corner at (1, 0)
     assert np.all(np.diff(kept) > 0) and at.shape == (poly.shape[0],)
     assert kept.size < 0.3 * poly.shape[0]
+
+
+def _thin_one_pass(Q, step, turn_deg=m.KEEP_TURN_DEG):
+    """The thinning as one pass over the whole polyline (the reference the chunked one must
+    equal bit for bit)."""
+    d = np.diff(Q, axis=0)
+    seg = np.hypot(d[:, 0], d[:, 1])
+    cum = np.concatenate([[0.0], np.cumsum(seg)])
+    keep = np.zeros(Q.shape[0], bool)
+    keep[0] = keep[-1] = True
+    bucket = np.floor(cum / step)
+    keep[1:] |= bucket[1:] > bucket[:-1]
+    mv = np.flatnonzero(seg > 0)
+    a, b = d[mv[:-1]], d[mv[1:]]
+    cos = np.sum(a * b, axis=1) / (seg[mv[:-1]] * seg[mv[1:]])
+    keep[mv[1:][cos < np.cos(np.radians(turn_deg))]] = True
+    return keep
+
+
+@pytest.mark.parametrize("chunk", [1, 2, 3, 64, 1 << 20])
+def test_chunked_thinning_equals_one_pass(chunk):
+    """Whatever the chunk (the optimizer thins a whole file's samples at each check, in chunks
+    to bound memory): the same vertices, including turns whose moving segments straddle a
+    chunk boundary across stops (repeated vertices)."""
+    rng = np.random.default_rng(7)
+    K = 3000
+    t = np.cumsum(rng.exponential(0.01, K))
+    Q = np.round(np.column_stack([50 * np.cos(3 * t), 40 * np.sin(2 * t)]), 2)
+    Q[rng.random(K) < 0.3] = Q[0]
+    stops = rng.integers(1, K - 1, 40)
+    Q[stops] = Q[stops - 1]
+    want = _thin_one_pass(Q, m.MIN_STEP_MM)
+    got = m._thin_mask(Q, m.MIN_STEP_MM, chunk=chunk)
+    np.testing.assert_array_equal(got, want)
+    kept, at = m.thin_polyline(Q)
+    np.testing.assert_array_equal(kept, np.flatnonzero(want))
+    np.testing.assert_array_equal(at, np.searchsorted(kept, np.arange(K), side="right") - 1)
