@@ -20,12 +20,16 @@ from ..conftest import GCODE_DIR, REPO
 
 FILES = sorted(GCODE_DIR.glob("*.gcode")) + [REPO / "sample_gcode" / "part_prusaslicer.gcode",
                                              REPO / "sample_gcode" / "butterfly.gcode"]
+#: whole files whose plan takes minutes (the ArcWelder Benchy: 20.6 M samples, 11.6 h of
+#: print at its cooling speeds): the slow run (`python -m pytest -m slow`, in .ci/run)
+SLOW = ("slic3rpe-arcwelder_3dbenchy-arcs.gcode",)
 
 
-@pytest.mark.parametrize("src", FILES, ids=lambda p: p.name)
+@pytest.mark.parametrize("src", [pytest.param(p, marks=pytest.mark.slow) if p.name in SLOW else p
+                                 for p in FILES], ids=lambda p: p.name)
 def test_round_trip_invariants(src: pathlib.Path, tmp_path):
     # the command as users run it, in its own process: a whole real file planned with the twin
-    # takes gigabytes at its peak (the ArcWelder Benchy ~11 GB, see the README's performance
+    # takes gigabytes at its peak (the ArcWelder Benchy ~6 GB, see the README's performance
     # notes), which a long-lived test process would not give back
     if not src.exists():
         pytest.skip(f"{src} not found")
