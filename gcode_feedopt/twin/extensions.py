@@ -17,9 +17,9 @@ way ``diagnose`` fitted it:
   this axis's dynamics (form ``acceleration``, a frame force: the reaction of the other
   carriage's real motion), its commanded acceleration through them (form ``command``: the
   reaction of a motor force that follows the other axis's command, as a stiff servo's does,
-  not its carriage's ringing), the predicted one through them twice (form ``belt``: a corexy whose two
-  belts differ, see below), or ``coefficient`` times the other axis's predicted motion (form
-  ``position``);
+  not its carriage's ringing), the predicted one through them twice (form ``belt``: a
+  corexy whose two belts differ, see below), or ``coefficient`` times the other axis's
+  predicted motion (form ``position``);
 - ``gain``: besides its change of the response (about the first commanded sample, where the
   twin works), the constant (s − 1)·x_0 that a scale about the machine origin adds.
 

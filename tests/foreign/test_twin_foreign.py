@@ -240,7 +240,8 @@ def test_a_frame_pushed_by_the_other_axiss_command_is_named(which, dataset):
     missed both (its x rings where the command does not) and sized the others 25–76 % low."""
     truth, g, d = _named(dataset(which), "cross_coupling", source="command")
     assert g is not None, (truth, d.effects)
-    assert g["params"]["form"] == "command" and g["params"]["from_axis"] == truth["params"]["from_axis"]
+    assert g["params"]["form"] == "command"
+    assert g["params"]["from_axis"] == truth["params"]["from_axis"]
     tv = truth["params"]["mm_per_mm_s2"]
     assert abs(g["params"]["mm_per_mm_s2"] - tv) <= 0.12 * tv, (truth, g)
     assert all(g["kind"] == "cross_coupling" for g in d.effects), d.effects
@@ -265,7 +266,8 @@ def test_a_written_command_coupling_predicts_what_diagnose_reported(dataset, tmp
                                  str(tmp_path / "d.json"), "-o", str(tmp_path / "ext.yaml")])
     assert r.exit_code == 0, r.output
     d = json.loads((tmp_path / "d.json").read_text())
-    assert [(g["kind"], g["params"]["form"]) for g in d["effects"]] == [("cross_coupling", "command")]
+    named = [(g["kind"], g["params"]["form"]) for g in d["effects"]]
+    assert named == [("cross_coupling", "command")], named
     r = CliRunner().invoke(cli, ["predict", "-m", str(tmp_path / "ext.yaml"), str(log), "-o",
                                  str(tmp_path / "p.csv"), "--no-learn"])
     assert r.exit_code == 0, r.output
