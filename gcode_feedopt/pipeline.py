@@ -303,7 +303,7 @@ def optimize_file(in_path, out_path, profile, opts: Options, progress=None) -> R
         wall["verify"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         # the printer as its owner configured it runs both files (the output sets the plan's
-        # limits itself, gcode.writer._PlanLimits); the input also at the profile's values,
+        # limits itself, gcode.firmware_lines._PlanLimits); the input also at the profile's values,
         # to tell the saving from raised limits apart from the plan's
         configured = firmware.as_configured(profile)
         say("timing both files on the firmware model")

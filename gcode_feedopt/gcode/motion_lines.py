@@ -4,8 +4,8 @@
 G0/G1/G2/G3 lines: intermediate points at ``XYZ_DECIMALS``/``E_DECIMALS`` (or the file's own
 precision where it writes more), the last piece ending on the move's own number texts (for
 relative moves the exact decimal remainder), arcs as sub-arcs with I/J recomputed, and F the
-piece's speed under the speed policy's ceiling. The writer's other lines use the same number
-formatting (``_fmt``).
+piece's speed under the speed policy's ceiling. The writer's other lines (gcode.firmware_lines)
+use the same number formatting (``_fmt``).
 """
 
 from __future__ import annotations

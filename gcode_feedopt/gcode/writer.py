@@ -37,6 +37,8 @@ import numpy as np
 
 from .. import __version__
 from ..vm.firmware import override_restore_texts
+from .firmware_lines import (_OVERRIDE_WHY, _RESTORE_WHY, _AccelState, _ClampState,
+                             _PlanLimits)
 from .metadata import MetadataUpdater
 from .motion_lines import _Emitter, _fmt
 from .path import SEG_LINE, Path
@@ -337,179 +339,6 @@ def _close_pieces(out, u_pts, t_pts, L, min_dt):
 
 def _t_of(u_pts, t_pts, u):
     return float(np.interp(u, u_pts, t_pts))
-
-
-class _AccelState:
-    """The acceleration (and junction) settings of slowed stretches, and their restore.
-
-    A slow-down plan (optimize.slowdown) scales a cell's feed cap by r, its acceleration by r²
-    and its junction speeds by r: the firmware's own plan at 1/r of the speed. Told the
-    cell's acceleration (Marlin: ``M204 P T``; Klipper: ``SET_VELOCITY_LIMIT ACCEL``) and its
-    junction rule scaled by r (Marlin's classic jerk ``M205 X Y`` when the file uses it — a
-    junction deviation scales with the acceleration by itself; Klipper's
-    ``SQUARE_CORNER_VELOCITY``), the firmware runs that plan as planned with one line per
-    cell run at the run's peak speed, instead of a staircase of F values it would take at
-    full acceleration (slower, and with the acceleration bursts the plan avoided). The values
-    in force (the profile's, then the file's) are restored before the next line that is not
-    a slowed piece or a comment, and at the end of the file."""
-
-    def __init__(self, settings):
-        self.st = settings
-        self.klipper = settings.flavour == "klipper"
-        self.active = None  # (accel, r) in force from our lines, or None
-        self.lines = 0
-
-    def _jerk(self, mi):
-        j = self.st.jerk_xy_mm_s[mi]
-        return None if np.isnan(j[0]) else j
-
-    def set(self, key, mi: int, ending: bytes) -> list[bytes]:
-        if key == self.active:
-            return []
-        acc, r = key
-        a = _fmt(acc, 0)
-        if self.klipper:
-            out = [f"SET_VELOCITY_LIMIT ACCEL={a} SQUARE_CORNER_VELOCITY="
-                   f"{_fmt(float(self.st.scv_mm_s[mi]) * r, 3)}".encode() + ending]
-        else:
-            out = [f"M204 P{a} T{a}".encode() + ending]
-            j = self._jerk(mi)
-            if j is not None:
-                out.append(f"M205 X{_fmt(j[0] * r, 3)} Y{_fmt(j[1] * r, 3)}".encode() + ending)
-        self.active = key
-        self._mi = mi
-        self.lines += len(out)
-        return out
-
-    def restore(self, ending: bytes) -> list[bytes]:
-        if self.active is None:
-            return []
-        mi = self._mi
-        if self.klipper:
-            out = [f"SET_VELOCITY_LIMIT ACCEL={_fmt(float(self.st.accel_print_mm_s2[mi]), 3)} "
-                   f"SQUARE_CORNER_VELOCITY={_fmt(float(self.st.scv_mm_s[mi]), 3)}".encode()
-                   + ending]
-        else:
-            out = [f"M204 P{_fmt(float(self.st.accel_print_mm_s2[mi]), 3)} "
-                   f"T{_fmt(float(self.st.accel_travel_mm_s2[mi]), 3)}".encode() + ending]
-            j = self._jerk(mi)
-            if j is not None:
-                out.append(f"M205 X{_fmt(j[0], 3)} Y{_fmt(j[1], 3)}".encode() + ending)
-        self.active = None
-        self.lines += len(out)
-        return out
-
-
-class _ClampState:
-    """The firmware's acceleration limits clamped to the plan's (vm.firmware.AccelClamp): a
-    line before any move where the limits in force are above the plan's, and the file's own
-    values back after the last move. A file line setting them again ends ours (``epoch``)."""
-
-    def __init__(self, clamp):
-        self.klipper = clamp.flavour == "klipper"
-        # per move, as Python tuples: compared once per motion line
-        self.want = [tuple(r) for r in clamp.want_mm_s2.tolist()]
-        self.file = [tuple(r) for r in clamp.file_mm_s2.tolist()]
-        self.epoch = clamp.epoch.tolist()
-        self.ours = None  # (epoch, values) of our last line
-        self.lines = 0
-
-    def _line(self, vals, ending: bytes) -> bytes:
-        if self.klipper:
-            return f"SET_VELOCITY_LIMIT ACCEL={_fmt(vals[0], 3)}".encode() + ending
-        return ("M201 " + " ".join(f"{a}{_fmt(v, 3)}" for a, v in zip("XYZ", vals))).encode() \
-            + ending
-
-    def _have(self, mi: int):
-        if self.ours is not None and self.ours[0] == self.epoch[mi]:
-            return self.ours[1]
-        return self.file[mi]
-
-    def before_move(self, mi: int, ending: bytes) -> list[bytes]:
-        want = self.want[mi]
-        if self._have(mi) == want:
-            return []
-        self.ours = (self.epoch[mi], want)
-        self.lines += 1
-        return [self._line(want, ending)]
-
-    def set_to_want(self, mi: int) -> None:
-        """Another line of ours (Klipper's ACCEL restore) has set the clamped value."""
-        self.ours = (self.epoch[mi], self.want[mi])
-
-    def restore(self, mi: int, ending: bytes) -> list[bytes]:
-        """The file's values in force at move ``mi`` (the last), if ours hold."""
-        file = self.file[mi]
-        if self._have(mi) == file:
-            return []
-        self.ours = None
-        self.lines += 1
-        return [self._line(file, ending)]
-
-
-class _PlanLimits:
-    """The acceleration limits the plan is timed with, where the printer as its owner
-    configured it runs lower ones (profile ``firmware.configured_*``): set before the first
-    re-timed move — Marlin ``M201 X Y`` then ``M204 P R T``, Klipper ``SET_VELOCITY_LIMIT
-    ACCEL`` — with the values the firmware model has in force there (the profile's, then the
-    file's own lines), and the configured values back after the last move. In between, the
-    file's own settings and our slowed stretches start from what the plan assumed."""
-
-    def __init__(self, fw, settings):
-        self.fw, self.st = fw, settings
-        self.klipper = fw.flavour == "klipper"
-        self.done = False
-        self.raised = {"max": False, "accel": False}
-        self.lines = 0
-
-    def before_first(self, mi: int, ending: bytes) -> list[bytes]:
-        if self.done:
-            return []
-        self.done = True
-        st, fw, out = self.st, self.fw, []
-        conf_a, conf_m = fw.configured_accel_mm_s2, fw.configured_max_accel_mm_s2
-        p, t = float(st.accel_print_mm_s2[mi]), float(st.accel_travel_mm_s2[mi])
-        if self.klipper:
-            if conf_a is not None and p > conf_a:
-                out.append(f"SET_VELOCITY_LIMIT ACCEL={_fmt(p, 3)}".encode() + self._why(ending))
-                self.raised["accel"] = True
-        else:
-            if conf_m is not None and st.max_accel_xy_mm_s2 is not None:
-                mx, my = (float(v) for v in st.max_accel_xy_mm_s2[mi])
-                if mx > conf_m["x"] or my > conf_m["y"]:
-                    out.append(f"M201 X{_fmt(mx, 3)} Y{_fmt(my, 3)}".encode() + self._why(ending))
-                    self.raised["max"] = True
-            r = p if st.accel_retract_mm_s2 is None else float(st.accel_retract_mm_s2[mi])
-            if conf_a is not None and max(p, t, r) > conf_a:
-                out.append(f"M204 P{_fmt(p, 3)} R{_fmt(r, 3)} T{_fmt(t, 3)}".encode()
-                           + self._why(ending))
-                self.raised["accel"] = True
-        self.lines += len(out)
-        self.set_lines = tuple(ln.split(b" ;")[0].decode() for ln in out)
-        return out
-
-    set_lines: tuple = ()
-
-    @staticmethod
-    def _why(ending: bytes) -> bytes:
-        return b" ; gcode-feedopt: the limits the plan is timed with" + ending
-
-    def restore(self, ending: bytes) -> list[bytes]:
-        fw, out = self.fw, []
-        ending = b" ; gcode-feedopt: the printer's configured limits again" + ending
-        if self.klipper:
-            if self.raised["accel"]:
-                out.append(f"SET_VELOCITY_LIMIT ACCEL={_fmt(fw.configured_accel_mm_s2, 3)}".encode()
-                           + ending)
-        else:
-            if self.raised["max"]:
-                c = fw.configured_max_accel_mm_s2
-                out.append(f"M201 X{_fmt(c['x'], 3)} Y{_fmt(c['y'], 3)}".encode() + ending)
-            if self.raised["accel"]:
-                a = _fmt(fw.configured_accel_mm_s2, 3)
-                out.append(f"M204 P{a} R{a} T{a}".encode() + ending)
-        self.lines += len(out)
-        return out
 
 
 #: a planned segment is written as one line at its peak speed when the plan's acceleration is
@@ -911,10 +740,6 @@ def write(program: Program, path: Path, schedule: Schedule, profile, *, mode: st
                        accel_lines=accel_lines,
                        plan_limit_lines=plan_limits.set_lines if plan_limits is not None else (),
                        override_lines=n_override)
-
-
-_OVERRIDE_WHY = b" ; gcode-feedopt: the plan's acceleration (--accel plan)"
-_RESTORE_WHY = b" ; gcode-feedopt: the file's own acceleration again"
 
 
 def _after_last_move(tags: list, last_move: int, last_line: int) -> int:

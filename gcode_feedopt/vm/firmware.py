@@ -461,7 +461,7 @@ def as_configured(profile):
 
 def raises_configured(profile) -> bool:
     """The printer as configured (``firmware.configured_*``) runs lower acceleration limits
-    than the plan is timed with: the writer sets the plan's (gcode.writer._PlanLimits)."""
+    than the plan is timed with: the writer sets the plan's (gcode.firmware_lines._PlanLimits)."""
     fw = profile.firmware
     if fw.configured_accel_mm_s2 is not None and fw.configured_accel_mm_s2 < max(
             fw.accel_mm_s2, fw.travel_accel_mm_s2):
