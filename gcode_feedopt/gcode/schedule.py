@@ -11,7 +11,7 @@ import numpy as np
 @dataclass(frozen=True, eq=False)
 class SegmentPlan:
     """Every segment's firmware trapezoid, for writing it as one line at its peak speed
-    (gcode.writer.plan_peaks). Made by plan.kinematic.segment_plan.
+    (gcode.pieces.plan_peaks). Made by plan.kinematic.segment_plan.
 
     Attributes:
         peak_mm_s: (N,) the peak speed of each segment's trapezoid, mm/s.

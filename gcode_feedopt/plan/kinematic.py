@@ -243,7 +243,7 @@ def plan_trapezoids(path: Path, *, vmax_mm_s: float, axis_vmax_mm_s: dict,
 def segment_plan(peak_mm_s: np.ndarray, accel_mm_s2: np.ndarray,
                  jerk_junction: np.ndarray | None) -> SegmentPlan:
     """What the writer needs to write a planned segment as one line at its peak speed
-    (gcode.writer.plan_peaks): the peak and acceleration of every segment's trapezoid, and
+    (gcode.pieces.plan_peaks): the peak and acceleration of every segment's trapezoid, and
     ``exact`` (N,): the firmware's junction speeds at both ends do not depend on F. Classic
     jerk's do (Marlin limits the junction by the jerk of the two moves at their nominal
     speeds), so a line at the peak instead of the plan's cap may cross such a junction faster

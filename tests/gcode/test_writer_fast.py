@@ -14,8 +14,9 @@ from gcode_feedopt.gcode.path import build_path
 from gcode_feedopt.gcode.reader import read_program
 from gcode_feedopt.gcode.schedule import Schedule
 from gcode_feedopt.gcode.motion_lines import _Emitter
-from gcode_feedopt.gcode.writer import (_firmware_band, _pieces, _split_pieces, segment_times,
-                                        single_piece_speeds, write)
+from gcode_feedopt.gcode.pieces import (_firmware_band, _pieces, _split_pieces, segment_times,
+                                        single_piece_speeds)
+from gcode_feedopt.gcode.writer import write
 from gcode_feedopt.plan.kinematic import plan_kinematic, writer_accel
 from gcode_feedopt.profile import load_profile
 from gcode_feedopt.vm import firmware

@@ -1,4 +1,4 @@
-"""A planned segment written as one line at the plan's own peak speed (writer.plan_peaks): the
+"""A planned segment written as one line at the plan's own peak speed (pieces.plan_peaks): the
 firmware model then runs the written file as planned, where lines at the sampled speeds (the
 fastest sample interval's mean, split into a staircase where a short segment starts near rest)
 run several percent slower. And E-only moves last in the plan what the firmware gives them."""
