@@ -25,7 +25,9 @@ then refined. A kind may have two forms, the one that fits better is taken (the 
   ``output``), plus a free offset (where the band sits at the start is unknown);
 - ``friction`` (``magnitude_mm``, the quasi-static lag): a Coulomb force −F·sign(v) whose lag
   relaxes with a time constant τ once the axis stops (τ scanned, 0 = at once), through the
-  axis dynamics (form ``force``) or as a following error at the output (form ``output``);
+  axis dynamics (form ``response``), the force path (form ``force``) or as a following error
+  at the output (form ``output``); on an axis with integral action (a servo: real poles in
+  its modal fit) also washed out by the integrator in ``integral_s`` (form ``integral``);
 - ``periodic_time`` (``frequency_hz``, ``amplitude_mm``): a sinusoid in time (a fan);
 - ``periodic_position`` (``wavelength_mm``, ``amplitude_mm``): a sinusoid of the commanded
   position (tooth pitch, screw runout) through the dynamics (``dynamics``) or at the output;
@@ -73,7 +75,7 @@ from scipy import stats
 from scipy.signal import oaconvolve
 
 from ..errors import LogError
-from ..twin.extensions import mean_offsets, relax_sign
+from ..twin.extensions import integral_sign, mean_offsets, relax_sign
 from ..twin.model import axis_twin, noise_floor_mm
 from ..twin.physics import RINGING_ZETA, AxisPhysics, axis_physics
 from ..vm import effects as fx
@@ -98,6 +100,10 @@ FIT_FRACTION = 0.6
 RING_BAND = 0.15
 #: Friction relaxation time constants scanned, s (0: the lag vanishes as the axis stops).
 FRICTION_TAU_S = (0.0, 0.03, 0.1, 0.2, 0.3, 0.5, 1e6)
+#: Integral time constants K_p/K_i scanned for a servo's friction (form ``integral``), s.
+INTEGRAL_TAU_S = tuple(float(v) for v in np.geomspace(0.005, 0.4, 12))
+#: Level of the test the integral form must pass against the steady ones (``_candidates``).
+INTEGRAL_ALPHA = 0.01
 
 
 @dataclass
@@ -486,11 +492,38 @@ def _candidates(A: _Axis, base: _Model, named_kinds, other: _Axis, base_other: _
             # τ is seen only where the axis rests after moving: the simplest (first) wins ties
             if best is None or v > best[0] + 1e-9 * abs(best[0]):
                 best = (v, form, tau, m)
+    # the same force as a loop with integral action (a servo) sees it: washed out in τ_i
+    # (twin.extensions.integral_sign). Tried only on an axis whose modal fit has real poles,
+    # which such a loop puts below its bandwidth (AxisPhysics.integral_action): a corexy's
+    # friction (tests/foreign, seed 18) otherwise took this form and came out a tie with
+    # backlash. It nests the steady forms (τ_i → ∞) and has τ_i to spare, so it must also
+    # beat the best of them significantly: its gain in the fit part's squares, in units of
+    # its residual variance per effective sample, above the χ²(1) quantile at 1 %
+    # Bonferroni-divided over the τ_i tried.
+    fh = A.phys.force if A.phys.force is not None else hd
+    bar = stats.chi2.ppf(1.0 - INTEGRAL_ALPHA / len(INTEGRAL_TAU_S), 1)
+    best_int = None
+    for tau_i in INTEGRAL_TAU_S if A.phys.integral_action else ():
+        G = respond(integral_sign(cmd, ts, tau_i), fh)[:, None]
+        m = with_extra(G)
+        if not m.w_mean[-1] > 0:
+            continue
+        e = m.resid_mean[fit]
+        v = -float(e @ e)
+        if best_int is None or v > best_int[0]:
+            best_int = (v, "integral", tau_i, m)
+    if best_int is not None:
+        e = best_int[3].resid_mean[fit]
+        if best is None:
+            best = best_int
+        elif (best_int[0] - best[0]) * _n_eff(e) / float(e @ e) > bar:
+            best = best_int
     if best is not None:
         _, form, tau, m = best
+        key = "integral_s" if form == "integral" else "relax_s"
         out.append(("friction", form, {"magnitude_mm": float(m.w_mean[-1]),
-                                        "relax_s": float(tau), "form": form},
-                    m, 3 * len(FRICTION_TAU_S), 2))
+                                        key: float(tau), "form": form},
+                    m, 3 * len(FRICTION_TAU_S) + (len(INTEGRAL_TAU_S) if A.phys.integral_action else 0), 2))
 
     # delay (unit weight)
     if "delay" not in named_kinds:

@@ -12,7 +12,10 @@ way ``diagnose`` fitted it:
   the response (form ``output``), plus ``offset_mm``, where the band sat in the log it was
   fitted on;
 - ``friction``: m·(−sign v_cmd), relaxing with ``relax_s`` once the axis stops, through the
-  dynamics (``response``), the force response (``force``) or at the output (``output``);
+  dynamics (``response``), the force response (``force``) or at the output (``output``); on a
+  position loop with integral action (a servo) form ``integral``: the force's step at each
+  reversal through the force response, washed out by the integrator with time constant
+  ``integral_s`` (:func:`integral_sign`);
 - ``cross_coupling``: ``mm_per_mm_s2`` times the other axis's predicted acceleration through
   this axis's dynamics (form ``acceleration``, a frame force: the reaction of the other
   carriage's real motion), its commanded acceleration through them (form ``command``: the
@@ -41,6 +44,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from scipy.signal import lfilter
 
 from ..vm import effects as fx
 from ..vm.plant import respond
@@ -63,7 +67,8 @@ PARAMS = {
     "backlash": {"magnitude_mm": (0.0, 10.0), "offset_mm": (-10.0, 10.0),
                  "form": ("input", "output")},
     "friction": {"magnitude_mm": (-10.0, 10.0), "relax_s": (0.0, 1e6),
-                 "form": ("response", "force", "output")},
+                 "integral_s": (1e-4, 10.0),
+                 "form": ("response", "force", "output", "integral")},
     "cross_coupling": {"from_axis": ("x", "y"), "mm_per_mm_s2": (-1.0, 1.0),
                        "coefficient": (-1.0, 1.0),
                        "form": ("acceleration", "command", "belt", "position")},
@@ -78,7 +83,7 @@ REQUIRED = {
 DEFAULTS = {
     "periodic_position": {"phase_rad": 0.0, "form": "dynamics"},
     "backlash": {"offset_mm": 0.0, "form": "input"},
-    "friction": {"relax_s": 0.0, "form": "response"},
+    "friction": {"relax_s": 0.0, "integral_s": 0.1, "form": "response"},
     "cross_coupling": {"mm_per_mm_s2": 0.0, "coefficient": 0.0, "form": "acceleration"},
 }
 
@@ -94,6 +99,18 @@ def relax_sign(cmd_mm: np.ndarray, ts_s: float, tau_s: float) -> np.ndarray:
     for k in np.flatnonzero(s == 0).tolist():
         out[k] = a * out[k - 1] if k > 0 else 0.0
     return out
+
+
+def integral_sign(cmd_mm: np.ndarray, ts_s: float, tau_s: float) -> np.ndarray:
+    """(K,) −sign(v_cmd) through the high-pass τs/(1 + τs): a Coulomb force as a position loop
+    with integral action sees it. Such a loop (PID on a motor) rejects a steady force: its
+    error to a force F is P/(1 + C·P)·F, and against the loop without the integrator the
+    ratio is s(K_p + K_d s)/(K_d s² + K_p s + K_i) ≈ τs/(1 + τs), τ = K_p/K_i. The step at a
+    reversal moves the axis by the loop's compliance and decays in ~τ, moving or not."""
+    s = -fx.velocity_sign(np.asarray(cmd_mm, float), ts_s)
+    a = math.exp(-ts_s / tau_s)
+    low = lfilter([1.0 - a], [1.0, -a], s)
+    return s - low
 
 
 def additive_term(kind: str, params: dict, cmd_mm: np.ndarray, ts_s: float, h: np.ndarray, *,
@@ -124,6 +141,9 @@ def additive_term(kind: str, params: dict, cmd_mm: np.ndarray, ts_s: float, h: n
             return respond(fx.play(cmd, b), h) - pred + p["offset_mm"]
         return fx.play(pred, b) - pred + p["offset_mm"]
     if kind == "friction":
+        if p["form"] == "integral":
+            s = integral_sign(cmd, ts_s, p["integral_s"])
+            return p["magnitude_mm"] * respond(s, h if force_h is None else force_h)
         s = relax_sign(cmd, ts_s, p["relax_s"])
         if p["form"] == "output":
             return p["magnitude_mm"] * s
@@ -171,7 +191,7 @@ def mean_offsets(profile, cmd_mm: np.ndarray) -> np.ndarray:
             if e["kind"] not in ADDITIVE_KINDS and e["kind"] != "gain":
                 continue
             fh = None
-            if e["kind"] == "friction" and e["params"].get("form") == "force":
+            if e["kind"] == "friction" and e["params"].get("form") in ("force", "integral"):
                 if ax not in force:
                     force[ax] = _force_h(profile, ax)
                 fh = force[ax]

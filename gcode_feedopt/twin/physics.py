@@ -211,6 +211,9 @@ class AxisPhysics:
             it (modal physics), or None (then only the frequency-rescaled form is tried).
         force: (n,) response of the axis to a force on its carriage, unit DC gain: the modes
             without the residues' damping zeros (b1 = 0, no direct part), or None.
+        integral_action: the modal fit has real poles (a pair with ζ > 1), which a position
+            loop with integral action (a servo's PID) puts below its bandwidth: such a loop
+            washes a steady force out (``twin.extensions.integral_sign``).
     """
 
     mean: np.ndarray
@@ -220,6 +223,7 @@ class AxisPhysics:
     force: np.ndarray | None = None
     mode_span_hz: tuple[float, float] | None = None
     mode_zeta: float | None = None
+    integral_action: bool = False
 
 
 def nominal_impulse(profile) -> dict:
@@ -269,12 +273,14 @@ def axis_physics(profile) -> dict:
                     for ft in fits.fits]
             span = (min(doms), max(doms)) if mm.damping[dom] < RINGING_ZETA else None
             zeta = float(mm.damping[dom])
+            integral = bool(np.any(mm.damping > 1.0))
         else:
             mode = dominant_mode_hz(mean, profile.ts_s)
             force = None
             span = zeta = None
+            integral = False
         out[ax] = AxisPhysics(mean=mean, factor=L, mode_hz=mode, shifted=shifted, force=force,
-                              mode_span_hz=span, mode_zeta=zeta)
+                              mode_span_hz=span, mode_zeta=zeta, integral_action=integral)
     return out
 
 

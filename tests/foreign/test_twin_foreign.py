@@ -88,6 +88,8 @@ SETS = {
     # a Coulomb friction, a frame pushed by the other axis)
     "belt14more": (14, "more"),
     "hotend21more": (21, "more"),
+    # PID servo (seed 8) with the drive's effects: its integrator washes a friction out
+    "servo8more": (8, "more"),
 }
 
 
@@ -247,19 +249,41 @@ def test_a_frame_pushed_by_the_other_axiss_command_is_named(which, dataset):
     assert all(g["kind"] == "cross_coupling" for g in d.effects), d.effects
 
 
-def test_a_written_command_coupling_predicts_what_diagnose_reported(dataset, tmp_path):
-    """Issue 19, point 4, for the ``command`` form: the profile ``diagnose -o`` writes for the
-    frame pushed by the other axis's command, loaded back and run by ``predict --no-learn``,
-    has the held-out RMS ``diagnose`` reported, within 10 % (the term is computed from the
-    other axis's command in predict as in diagnose)."""
+def test_a_servos_friction_is_named_as_its_integrator_sees_it(dataset):
+    """A Coulomb friction on a PID servo's table: the loop's integral action takes the steady
+    lag out, so the axis is pushed back at each reversal and recovers in ~K_p/K_i. Named
+    friction in form ``integral`` (twin.extensions.integral_sign), sized within 15 % of the
+    label (the lag of the loop without its integrator, a scale: +11.9 %), and it explains
+    most of the held-out error: 21.4 → 4.5 µm, where the steady ``force`` form sized it
+    53 % low and left 15.7 µm (benchmarks/foreign_effects.py, seed 8)."""
+    truth, g, d = _named(dataset("servo8more"), "friction")
+    assert g is not None, (truth, d.effects)
+    assert g["params"]["form"] == "integral", g
+    tv = truth["params"]["magnitude_mm"]
+    assert abs(g["params"]["magnitude_mm"] - tv) <= 0.15 * tv, (truth, g)
+    ax = truth["axis"]
+    assert d.holdout_rms_mm["after"][ax] < 0.3 * d.holdout_rms_mm["before"][ax]
+    assert [e["kind"] for e in d.effects] == ["friction"], d.effects
+
+
+@pytest.mark.parametrize("which, kind, source, form", [
+    ("belt14more", "cross_coupling", "command", "command"),
+    ("servo8more", "friction", None, "integral")])
+def test_a_written_extension_predicts_what_diagnose_reported(which, kind, source, form,
+                                                             dataset, tmp_path):
+    """Issue 19, point 4, for the ``command`` form of a cross-coupling and the ``integral``
+    form of a servo's friction: the profile ``diagnose -o`` writes, loaded back and run by
+    ``predict --no-learn``, has the held-out RMS ``diagnose`` reported, within 10 % (each
+    term is computed in predict as in diagnose: from the other axis's command; through the
+    force response, washed out in the fitted ``integral_s``)."""
     from click.testing import CliRunner
 
     from gcode_feedopt.cli import cli
     from gcode_feedopt.profile.io import save_profile
 
-    out, labels, prof = dataset("belt14more")
-    e = next(e for e in labels["logs"] if e["effects"][0]["kind"] == "cross_coupling"
-             and e["effects"][0]["physics"]["source"] == "command")
+    out, labels, prof = dataset(which)
+    e = next(e for e in labels["logs"] if e["effects"][0]["kind"] == kind
+             and source in (None, e["effects"][0]["physics"].get("source")))
     log = out / "logs" / e["file"].split("/")[-1]
     base = save_profile(prof, tmp_path / "base.yaml")
     r = CliRunner().invoke(cli, ["diagnose", "-m", str(base), str(log), "--json",
@@ -267,7 +291,7 @@ def test_a_written_command_coupling_predicts_what_diagnose_reported(dataset, tmp
     assert r.exit_code == 0, r.output
     d = json.loads((tmp_path / "d.json").read_text())
     named = [(g["kind"], g["params"]["form"]) for g in d["effects"]]
-    assert named == [("cross_coupling", "command")], named
+    assert named == [(kind, form)], named
     r = CliRunner().invoke(cli, ["predict", "-m", str(tmp_path / "ext.yaml"), str(log), "-o",
                                  str(tmp_path / "p.csv"), "--no-learn"])
     assert r.exit_code == 0, r.output

@@ -1,0 +1,55 @@
+"""Closed forms of the extension terms ``twin.extensions`` adds to the prediction."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from gcode_feedopt.twin.extensions import PARAMS, additive_term, integral_sign
+
+TS = 0.002
+
+
+def _ramp_and_hold(n_move=300, n_hold=400, v_mm_s=20.0):
+    """A command that moves at v for n_move samples, then holds."""
+    x = np.concatenate([np.arange(n_move) * v_mm_s * TS, np.full(n_hold, n_move * v_mm_s * TS)])
+    return np.concatenate([np.zeros(50), x])
+
+
+def test_integral_sign_is_the_force_step_washed_out_exponentially():
+    """−sign(v) through τs/(1 + τs): after the motion starts the step decays as a^(k+1),
+    a = e^{−Ts/τ} (the discrete filter's pole: exp(−t/τ) at the samples), moving or not; at
+    the stop the opposite step leaves the low-passed part, decaying the same way."""
+    from gcode_feedopt.vm.effects import velocity_sign
+
+    cmd = _ramp_and_hold()
+    tau = 0.04
+    s = integral_sign(cmd, TS, tau)
+    a = math.exp(-TS / tau)
+    moving = np.flatnonzero(velocity_sign(cmd, TS))
+    start, stop = int(moving[0]), int(moving[-1]) + 1
+    k = np.arange(0, stop - start)
+    assert np.all(s[:start] == 0.0)
+    assert np.allclose(s[start + k], -a ** (k + 1), rtol=1e-12, atol=1e-15)
+    low = -(1.0 - a ** (stop - start))           # what the low-pass held at the stop
+    k = np.arange(0, cmd.size - stop)
+    assert np.allclose(s[stop + k], -low * a ** (k + 1), rtol=1e-9, atol=1e-15)
+
+
+def test_a_long_integral_time_is_the_steady_force_form():
+    """τ → ∞: nothing is washed out, the ``integral`` form is the ``force`` form."""
+    cmd = _ramp_and_hold()
+    h = np.exp(-np.arange(40) / 6.0)
+    h /= h.sum()
+    p = {"magnitude_mm": 0.02}
+    steady = additive_term("friction", {**p, "form": "force"}, cmd, TS, h, force_h=h)
+    washed = additive_term("friction", {**p, "form": "integral", "integral_s": 1e4}, cmd, TS, h,
+                           force_h=h)
+    assert np.max(np.abs(washed - steady)) < 1e-5 * 0.02 * 10
+    short = additive_term("friction", {**p, "form": "integral", "integral_s": 0.02}, cmd, TS, h,
+                          force_h=h)
+    # a short integral time: the lag is gone by the end of the move
+    end = 50 + 299
+    assert abs(short[end]) < 1e-3 * abs(steady[end])
+    assert "integral" in PARAMS["friction"]["form"]
