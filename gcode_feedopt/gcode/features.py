@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import FeedOptError
+
 #: the canonical features, in report order
 FEATURES = ("outer_wall", "inner_wall", "skin", "infill", "bridge", "support", "skirt",
             "travel", "other")
@@ -78,7 +80,6 @@ def parse_feature_tolerance(text: str | None) -> dict[str, float] | None:
     :data:`DEFAULT_FEATURE_TOLERANCE` (items after it override); ``off`` -> {} (one
     tolerance, the profile's table ignored); None -> None. A FeedOptError (one line) for an
     unknown feature or a value that is not a positive number (``none``: no limit)."""
-    from ..errors import FeedOptError
     if text is None:
         return None
     if text.strip().lower() == "off":
@@ -100,7 +101,6 @@ def parse_feature_tolerance(text: str | None) -> dict[str, float] | None:
 
 
 def _value(k: str, v) -> float:
-    from ..errors import FeedOptError
     if isinstance(v, str) and v.strip().lower() in ("none", "inf", "off"):
         return float("inf")
     try:
@@ -114,7 +114,6 @@ def _value(k: str, v) -> float:
 
 def check_feature_tolerance(tol: dict) -> dict[str, float]:
     """Validate {feature: mm}: known feature names, positive values; returns floats."""
-    from ..errors import FeedOptError
     out = {}
     for k, v in tol.items():
         if k not in FEATURES:

@@ -9,6 +9,7 @@ import warnings
 from ..errors import ModelWarning
 from .frf_io import frf_set_from_files
 from .schema import AxisModel, MachineProfile, Mode
+from ..twin.physics import axis_modal
 
 
 def build_from_frfs(base: MachineProfile, files: dict, *, name: str,
@@ -20,7 +21,6 @@ def build_from_frfs(base: MachineProfile, files: dict, *, name: str,
     here, by file and frequency, not discovered later in a run; the mean fit's modes are
     stored as the axis's ``modes``."""
     # on use: twin.modal's fitting stack (`gcode-feedopt --help` loads this module; +10 ms)
-    from ..twin.physics import axis_modal
 
     axes = dict(base.axes)
     for axis, paths in files.items():

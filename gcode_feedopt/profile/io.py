@@ -15,7 +15,8 @@ import pathlib
 import numpy as np
 import yaml
 
-from ..errors import OutputError, ProfileError
+from ..errors import FeedOptError, OutputError, ProfileError
+from ..gcode.features import check_feature_tolerance
 from ..inputs import read_text
 from ..outputs import check_output, make_output_folder, write_text
 from .frf_io import FRF_HEADER, frf_set_from_files, read_frf_csv, write_frf_csv  # noqa: F401
@@ -190,8 +191,6 @@ def _read_prior(sec: _Section, n: int) -> Prior:
 
 def _feature_tolerance(ls: _Section, origin: str) -> dict:
     """limits.feature_tolerance_mm: {feature: mm or 'none'} (gcode.features)."""
-    from ..errors import FeedOptError
-    from ..gcode.features import check_feature_tolerance
     v = ls.raw("feature_tolerance_mm", None)
     if v is None:
         return {}

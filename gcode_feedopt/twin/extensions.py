@@ -48,6 +48,7 @@ from scipy.signal import lfilter
 
 from ..vm import effects as fx
 from ..vm.plant import respond
+from .physics import axis_impulse, axis_physics
 
 #: kinds applied to the modal fits (``twin.physics``)
 LINEAR_KINDS = ("delay", "gain", "resonance_shift")
@@ -171,7 +172,6 @@ def mean_offsets(profile, cmd_mm: np.ndarray) -> np.ndarray:
     """(K, 2) what the profile's extensions add to the twin's mean prediction of X, Y (zeros
     when it has none)."""
     # on use: twin.modal's fitting stack (`gcode-feedopt --help` loads this module; +10 ms)
-    from .physics import axis_impulse
 
     cmd = np.asarray(cmd_mm, float)
     K = cmd.shape[0]
@@ -215,7 +215,6 @@ def motion_offsets(profile):
     """A function cmd (K, 2) -> (K, 2), mm: what the profile's MOTION_KINDS extensions add to
     the twin's mean prediction of X, Y, and the samples of history it needs (a ``belt``
     cross-coupling filters through the dynamics twice); None when the profile has none."""
-    from .physics import axis_impulse
 
     axes = ("x", "y")
     todo = [(i, ax, e) for i, ax in enumerate(axes) for e in profile.axes[ax].effects
@@ -251,6 +250,5 @@ def _column(cmd: np.ndarray, axes, axis):
 
 
 def _force_h(profile, axis):
-    from .physics import axis_physics
 
     return axis_physics(profile)[axis].force
