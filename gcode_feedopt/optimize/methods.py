@@ -39,7 +39,8 @@ from .free import ContourRules, FreePlan
 from . import parallel
 from .mpc import OVERSHOOT_LAG_S, MpcPlanner, MpcResult, MpcSettings
 from .predictors import PlantPredictor, TwinPredictor
-from .slowdown import PlantEvaluator, TwinEvaluator, plan_slowdown
+from .slowdown import plan_slowdown
+from .slowdown.evaluators import PlantEvaluator, TwinEvaluator
 
 METHODS = ("kinematic", "conservative", "pb", "dd", "pidd", "oracle")
 #: how a twin-driven method finds its plan: ``slowdown`` (whole-file passes, the offline

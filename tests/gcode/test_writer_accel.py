@@ -14,7 +14,8 @@ from gcode_feedopt.gcode.schedule import Schedule, SlowdownCells
 from gcode_feedopt.gcode.verify import verify
 from gcode_feedopt.gcode.writer import T_ACCEL, T_ORIG, write
 from gcode_feedopt.optimize.methods import _segment_plan
-from gcode_feedopt.optimize.slowdown import PlanGrid, _cell_peaks
+from gcode_feedopt.optimize.slowdown import _cell_peaks
+from gcode_feedopt.optimize.slowdown.grid import PlanGrid
 from gcode_feedopt.plan.kinematic import effective_limits, planner_limits, writer_accel
 from gcode_feedopt.profile import load_profile
 from gcode_feedopt.vm import firmware

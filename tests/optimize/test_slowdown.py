@@ -15,8 +15,9 @@ from scipy.stats import norm
 from gcode_feedopt import pipeline
 from gcode_feedopt.optimize.free import ContourRules, evaluate
 from gcode_feedopt.optimize.methods import make_twin_predictor, plan_schedule
-from gcode_feedopt.optimize.slowdown import (PlanGrid, PlantEvaluator, SlowdownSettings,
-                                             TwinEvaluator, plan_bound, plan_slowdown)
+from gcode_feedopt.optimize.slowdown import SlowdownSettings, plan_slowdown
+from gcode_feedopt.optimize.slowdown.evaluators import PlantEvaluator, TwinEvaluator, plan_bound
+from gcode_feedopt.optimize.slowdown.grid import PlanGrid
 from gcode_feedopt.plan.kinematic import effective_limits, plan_kinematic, planner_limits
 from gcode_feedopt.profile import load_profile
 from gcode_feedopt.vm import firmware
