@@ -190,10 +190,6 @@ def check_binary(data: bytes, name: str) -> None:
                          "that; convert the line ends to LF (e.g. `tr '\\r' '\\n'`)")
 
 
-def _decode(line: bytes) -> str:
-    return line.decode("latin-1")
-
-
 def _strip(text: str) -> tuple[str, bool]:
     """Return the code part of a line (comments, line number and checksum removed) and whether
     the line carried an N number or a checksum."""
@@ -310,6 +306,8 @@ def _tokenize(text: str, name: str, i: int, events: list, n_moves: int):
 
 #: Coordinates beyond this are refused as absurd (no machine is 100 m long), mm.
 ABSURD_MM = 1e5
+#: (index, letter) of the axes, for the loop over a move's words
+_AXES = ((0, "X"), (1, "Y"), (2, "Z"))
 
 
 def read_program(data: bytes, name: str = "<input>", *, flavour: str = "marlin",
@@ -360,105 +358,112 @@ def _read_program(data: bytes, name: str, *, flavour: str, g91_relative_e: bool,
     if not data.strip():
         raise GCodeError(f"{name}: file is empty; nothing to optimize (pass the slicer's G-code)")
     lines = split_lines(data)
-    st = _State(pos=[0.0, 0.0, 0.0], e=0.0, off=[0.0, 0.0, 0.0, 0.0])
-    moves: list[Move] = []
-    events: list[Event] = []
-    processed = None
-    klipper = flavour == "klipper"
+    rd = _Reader(name, flavour, g91_relative_e, retract_mm, retract_speed_mm_s)
+    rd.read(lines, fast)
+    moves, events = rd.moves, rd.events
+    if not moves:
+        raise GCodeError(f"{name}: no G0/G1/G2/G3 moves found; nothing to re-time "
+                         "(is this a G-code file?)")
+    for mv in moves:
+        if mv.feed_mm_s <= 0:
+            raise GCodeError(f"{name}:{mv.line_no + 1}: move without any feed rate (no F before "
+                             "it); add an F word to the first move")
+    check_limit_events(events, name)
+    return Program(name=name, lines=lines, moves=moves, events=events, flavour=flavour,
+                   processed_line=rd.processed)
 
-    def e_relative() -> bool:
-        if klipper or not g91_relative_e:
-            return st.e_rel_m83 or st.xyz_rel if klipper else st.e_rel_m83
-        if st.e_mode_explicit is not None:
-            return st.e_mode_explicit
-        return st.xyz_rel
 
-    tag = ""
-    for i, raw in enumerate(lines):
-        if raw.startswith(IDENT_PREFIX):
-            processed = i
-            continue
-        text = _decode(raw)
-        if text[:1] == ";":
-            t = tag_of(text)
-            if t is not None:
-                tag = t
-        fm = _FAST_MOTION.match(text) if fast else None
-        if fm is not None:
-            # the common `G0/G1 X.. Y.. E.. F..` line: the same words pygcode would give
-            code = fm.group(0).split(";", 1)[0].strip()
-            numbered = False
-            # its one G code is the motion (what the loop over gcodes below would find)
-            motion = 1 if fm.group(1) == "1" else 0
-            gcodes = mcodes = tcodes = ()
-            params = dict(_FAST_WORD.findall(fm.group(2)))
-        else:
-            tok = _tokenize(text, name, i, events, len(moves))
-            if tok is None:
+class _Reader:
+    """One read of a file, line by line: the modal state, the moves and events so far, and
+    the line of our ident if the file was processed before."""
+
+    def __init__(self, name: str, flavour: str, g91_relative_e: bool, retract_mm: float,
+                 retract_speed_mm_s: float):
+        self.name = name
+        self.klipper = flavour == "klipper"
+        self.g91_relative_e = g91_relative_e
+        self.retract_mm = retract_mm
+        self.retract_speed_mm_s = retract_speed_mm_s
+        self.st = _State(pos=[0.0, 0.0, 0.0], e=0.0, off=[0.0, 0.0, 0.0, 0.0])
+        self.moves: list[Move] = []
+        self.events: list[Event] = []
+        self.processed: int | None = None
+
+    def read(self, lines: list[bytes], fast: bool) -> None:
+        """The line loop: words of every line (the fast regular expression or pygcode), its
+        G/M/T codes (:meth:`commands`), the modal feed, and its move (:meth:`move`)."""
+        name, st, events, moves = self.name, self.st, self.events, self.moves
+        # bound once: looked up on each of a million lines otherwise
+        fast_match, fast_words, move = _FAST_MOTION.match, _FAST_WORD.findall, self.move
+        tag = ""
+        for i, raw in enumerate(lines):
+            if raw.startswith(IDENT_PREFIX):
+                self.processed = i
                 continue
-            code, numbered, gcodes, mcodes, tcodes, params = tok
-            motion = None
-        # F is modal for every code
-        feed_txt = params.get("F")
+            text = raw.decode("latin-1")  # every byte a character: only to find the words
+            if text[:1] == ";":
+                t = tag_of(text)
+                if t is not None:
+                    tag = t
+            fm = fast_match(text) if fast else None
+            if fm is not None:
+                # the common `G0/G1 X.. Y.. E.. F..` line: the same words pygcode would give
+                code = fm.group(0).split(";", 1)[0].strip()
+                numbered = False
+                # its one G code is the motion (what the loop over gcodes would find)
+                motion = 1 if fm.group(1) == "1" else 0
+                gcodes = mcodes = tcodes = ()
+                params = dict(fast_words(fm.group(2)))
+            else:
+                tok = _tokenize(text, name, i, events, len(moves))
+                if tok is None:
+                    continue
+                code, numbered, gcodes, mcodes, tcodes, params = tok
+                motion = self.commands(i, gcodes, mcodes, tcodes, params)
+            # F is modal for every code
+            feed_txt = params.get("F")
+            if feed_txt is not None:
+                fv = _f(feed_txt, name, i, "F")
+                if fv < MIN_FEED_MM_MIN:
+                    _refuse_feed(feed_txt, fv, name, i)
+                st.feed_mm_s = fv / 60.0
+            if motion is None:
+                if mcodes or gcodes or tcodes:
+                    continue
+                if not any(L in params for L in "XYZE"):
+                    continue
+                # axis words without a G code: modal motion is not supported
+                raise GCodeError(f"{name}:{i + 1}: axis words without G0/G1/G2/G3 ({code!r}); "
+                                 "write the motion code on every move")
+            if mcodes:
+                raise GCodeError(f"{name}:{i + 1}: a motion and an M-code on one line ({code!r}); "
+                                 "put them on separate lines")
+            has_axis = "X" in params or "Y" in params or "Z" in params or "E" in params
+            if motion in (0, 1) and not has_axis:
+                continue  # G1 F... : modal feed only
+            move(i, motion, params, numbered, tag)
+
+    def commands(self, i: int, gcodes, mcodes, tcodes, params: dict) -> int | None:
+        """The G, M and T codes of line ``i`` (modes, offsets, events); returns its motion
+        code (0–3), or None."""
+        motion = None
         for g in gcodes:
             gv = float(g)
-            if gv == 20:
-                raise GCodeError(f"{name}:{i + 1}: G20 (inches) is not supported; re-slice in "
-                                 "millimetres (G21)")
             if gv in (0, 1, 2, 3):
                 motion = int(gv)
-            elif gv == 90:
-                st.xyz_rel = False
-                if not klipper and g91_relative_e:
-                    st.e_mode_explicit = None
-            elif gv == 91:
-                st.xyz_rel = True
-                if not klipper and g91_relative_e:
-                    st.e_mode_explicit = None
-            elif gv == 92:
-                for k, L in enumerate("XYZ"):
-                    if L in params:
-                        st.off[k] = st.pos[k] - _f(params[L], name, i, L)
-                if "E" in params:
-                    st.off[3] = st.e - _f(params["E"], name, i, "E")
-                if not any(L in params for L in "XYZE"):
-                    st.off = [st.pos[0], st.pos[1], st.pos[2], st.e]
-            elif gv == 28:
-                homed = [L for L in "XYZ" if L in params] or list("XYZ")
-                for k, L in enumerate("XYZ"):
-                    if L in homed:
-                        st.pos[k] = 0.0
-                        st.off[k] = 0.0
-                events.append(Event(i, "G28", {}, stop=True, dwell_s=0.0, move_index=len(moves)))
-            elif gv == 4:
-                dwell = 0.0
-                if "P" in params:
-                    dwell = _f(params["P"], name, i, "P") / 1000.0
-                if "S" in params:
-                    dwell = _f(params["S"], name, i, "S")
-                events.append(Event(i, "G4", {}, stop=True, dwell_s=max(dwell, 0.0),
-                                    move_index=len(moves)))
-            elif gv in (10, 11) and not any(L in params for L in "PLR"):
-                # firmware retraction / recover
-                de = -retract_mm if gv == 10 else retract_mm
-                dwell = abs(de) / retract_speed_mm_s if retract_speed_mm_s > 0 else 0.0
-                events.append(Event(i, f"G{int(gv)}", {}, stop=True, dwell_s=dwell,
-                                    move_index=len(moves), de_mm=de))
-            elif gv in (17, 21, 94, 54, 80, 49, 40):
-                pass
-            elif gv in (18, 19):
-                raise GCodeError(f"{name}:{i + 1}: G{int(gv)} selects an arc plane other than XY, "
-                                 "which is not supported; use G17 (XY) arcs or linear moves")
             else:
-                events.append(Event(i, f"G{g}", {}, stop=True, dwell_s=0.0, move_index=len(moves)))
+                self.g_code(i, g, gv, params)
+        if not (mcodes or tcodes):
+            return motion
+        events, n_moves = self.events, len(self.moves)
         for m in mcodes:
             mv = int(float(m))
             if mv == 82:
-                st.e_rel_m83 = False
-                st.e_mode_explicit = False
+                self.st.e_rel_m83 = False
+                self.st.e_mode_explicit = False
             elif mv == 83:
-                st.e_rel_m83 = True
-                st.e_mode_explicit = True
+                self.st.e_rel_m83 = True
+                self.st.e_mode_explicit = True
             vals = {}
             for L, v in params.items():
                 try:
@@ -466,37 +471,68 @@ def _read_program(data: bytes, name: str, *, flavour: str, g91_relative_e: bool,
                 except ValueError:
                     pass
             stop = mv in SYNC_MCODES or (mv not in NOSYNC_MCODES)
-            events.append(Event(i, f"M{mv}", vals, stop=stop, dwell_s=0.0, move_index=len(moves)))
+            events.append(Event(i, f"M{mv}", vals, stop=stop, dwell_s=0.0, move_index=n_moves))
         for t in tcodes:
             events.append(Event(i, "T", {"T": float(t)}, stop=True, dwell_s=0.0,
-                                move_index=len(moves)))
-        if feed_txt is not None:
-            fv = _f(feed_txt, name, i, "F")
-            if fv <= 0:
-                raise GCodeError(f"{name}:{i + 1}: F{feed_txt} must be positive; fix the feed")
-            if fv < MIN_FEED_MM_MIN:
-                # F1e-30 planned a move of millions of years: the trapezoid's arrays could not
-                # be allocated (or exhausted the memory) instead of a one-line error
-                raise GCodeError(f"{name}:{i + 1}: F{feed_txt} is below {MIN_FEED_MM_MIN:g} "
-                                 "mm/min, slower than any machine moves; fix the feed")
-            st.feed_mm_s = fv / 60.0
-        if motion is None:
-            if mcodes or gcodes or tcodes:
-                continue
+                                move_index=n_moves))
+        return motion
+
+    def g_code(self, i: int, g: str, gv: float, params: dict) -> None:
+        """A G code other than a motion (0–3) on line ``i``."""
+        name, st, events = self.name, self.st, self.events
+        if gv == 20:
+            raise GCodeError(f"{name}:{i + 1}: G20 (inches) is not supported; re-slice in "
+                             "millimetres (G21)")
+        if gv in (90, 91):
+            st.xyz_rel = gv == 91
+            if not self.klipper and self.g91_relative_e:
+                st.e_mode_explicit = None
+        elif gv == 92:
+            for k, L in enumerate("XYZ"):
+                if L in params:
+                    st.off[k] = st.pos[k] - _f(params[L], name, i, L)
+            if "E" in params:
+                st.off[3] = st.e - _f(params["E"], name, i, "E")
             if not any(L in params for L in "XYZE"):
-                continue
-            motion = None  # axis words without a G code: modal motion is not supported
-            raise GCodeError(f"{name}:{i + 1}: axis words without G0/G1/G2/G3 ({code!r}); "
-                             "write the motion code on every move")
-        if mcodes:
-            raise GCodeError(f"{name}:{i + 1}: a motion and an M-code on one line ({code!r}); "
-                             "put them on separate lines")
-        has_axis = "X" in params or "Y" in params or "Z" in params or "E" in params
-        if motion in (0, 1) and not has_axis:
-            continue  # G1 F... : modal feed only
+                st.off = [st.pos[0], st.pos[1], st.pos[2], st.e]
+        elif gv == 28:
+            homed = [L for L in "XYZ" if L in params] or list("XYZ")
+            for k, L in enumerate("XYZ"):
+                if L in homed:
+                    st.pos[k] = 0.0
+                    st.off[k] = 0.0
+            events.append(Event(i, "G28", {}, stop=True, dwell_s=0.0, move_index=len(self.moves)))
+        elif gv == 4:
+            dwell = 0.0
+            if "P" in params:
+                dwell = _f(params["P"], name, i, "P") / 1000.0
+            if "S" in params:
+                dwell = _f(params["S"], name, i, "S")
+            events.append(Event(i, "G4", {}, stop=True, dwell_s=max(dwell, 0.0),
+                                move_index=len(self.moves)))
+        elif gv in (10, 11) and not any(L in params for L in "PLR"):
+            # firmware retraction / recover
+            de = -self.retract_mm if gv == 10 else self.retract_mm
+            sp = self.retract_speed_mm_s
+            dwell = abs(de) / sp if sp > 0 else 0.0
+            events.append(Event(i, f"G{int(gv)}", {}, stop=True, dwell_s=dwell,
+                                move_index=len(self.moves), de_mm=de))
+        elif gv in (17, 21, 94, 54, 80, 49, 40):
+            pass
+        elif gv in (18, 19):
+            raise GCodeError(f"{name}:{i + 1}: G{int(gv)} selects an arc plane other than XY, "
+                             "which is not supported; use G17 (XY) arcs or linear moves")
+        else:
+            events.append(Event(i, f"G{g}", {}, stop=True, dwell_s=0.0,
+                                move_index=len(self.moves)))
+
+    def move(self, i: int, motion: int, params: dict, numbered: bool, tag: str) -> None:
+        """The move of motion line ``i`` (G``motion``, its words ``params``, the feature
+        ``tag`` in force): its end points in machine coordinates, kind and layer."""
+        name, st = self.name, self.st
         start = tuple(st.pos)
         target = list(st.pos)
-        for k, L in enumerate("XYZ"):
+        for k, L in _AXES:
             if L in params:
                 v = _f(params[L], name, i, L)
                 target[k] = st.pos[k] + v if st.xyz_rel else v + st.off[k]
@@ -504,7 +540,12 @@ def _read_program(data: bytes, name: str, *, flavour: str, g91_relative_e: bool,
                     raise GCodeError(f"{name}:{i + 1}: {L}{params[L]} is beyond ±{ABSURD_MM:g} mm; "
                                      "check the units and coordinates")
         e0 = st.e
-        erel = e_relative()
+        if self.klipper or not self.g91_relative_e:
+            erel = st.e_rel_m83 or st.xyz_rel if self.klipper else st.e_rel_m83
+        elif st.e_mode_explicit is not None:
+            erel = st.e_mode_explicit
+        else:
+            erel = st.xyz_rel
         if "E" in params:
             v = _f(params["E"], name, i, "E")
             e1 = e0 + v if erel else v + st.off[3]
@@ -514,10 +555,7 @@ def _read_program(data: bytes, name: str, *, flavour: str, g91_relative_e: bool,
                                  "G92 E")
         else:
             e1 = e0
-        if st.feed_mm_s <= 0:
-            feed = 0.0
-        else:
-            feed = st.feed_mm_s
+        feed = 0.0 if st.feed_mm_s <= 0 else st.feed_mm_s
         arc = None
         if motion in (2, 3):
             arc = _arc(start, target, params, motion == 2, name, i)
@@ -539,22 +577,24 @@ def _read_program(data: bytes, name: str, *, flavour: str, g91_relative_e: bool,
             st.layer_z = target[2]
         elif kind == EXTRUDE and st.layer < 0:
             st.layer = 0
-        moves.append(_new_move(
+        self.moves.append(_new_move(
             i, f"G{motion}", start, tuple(target), e0, e1, feed, arc, kind, max(st.layer, 0),
             erel, st.xyz_rel, tuple(st.off), numbered, dict(params),
             "travel" if kind != EXTRUDE else canonical(tag)))
         st.pos = target
         st.e = e1
-    if not moves:
-        raise GCodeError(f"{name}: no G0/G1/G2/G3 moves found; nothing to re-time "
-                         "(is this a G-code file?)")
-    for mv in moves:
-        if mv.feed_mm_s <= 0:
-            raise GCodeError(f"{name}:{mv.line_no + 1}: move without any feed rate (no F before "
-                             "it); add an F word to the first move")
-    check_limit_events(events, name)
-    return Program(name=name, lines=lines, moves=moves, events=events, flavour=flavour,
-                   processed_line=processed)
+
+
+def _refuse_feed(feed_txt: str, fv: float, name: str, i: int) -> None:
+    """Refuse the F word of line ``i`` (``fv`` mm/min, below MIN_FEED_MM_MIN): not positive,
+    or slower than any machine moves."""
+    if fv <= 0:
+        raise GCodeError(f"{name}:{i + 1}: F{feed_txt} must be positive; fix the feed")
+    if fv < MIN_FEED_MM_MIN:
+        # F1e-30 planned a move of millions of years: the trapezoid's arrays could not
+        # be allocated (or exhausted the memory) instead of a one-line error
+        raise GCodeError(f"{name}:{i + 1}: F{feed_txt} is below {MIN_FEED_MM_MIN:g} "
+                         "mm/min, slower than any machine moves; fix the feed")
 
 
 #: limit-setting commands: parameter -> (lowest, highest) accepted value. An acceleration or
