@@ -19,7 +19,8 @@ from .gcode.reader import gc_paused, read_file
 from .gcode.verify import verify
 from .gcode.writer import write, write_trajectory_csv
 from .plan.kinematic import effective_limits, plan_kinematic, plan_trapezoids, writer_accel
-from .plan.speed import plan_vmax, planning_path
+from .plan.request import PlanRequest
+from .plan.speed import planning_path
 from .inputs import check_input
 from .outputs import check_outputs, output_file, output_path, write_bytes
 from .plot import plot_run
@@ -59,20 +60,13 @@ class Options:
     feature_tolerance: dict | None = None
 
 
-def feature_tolerance_map(profile, opts: Options) -> dict:
-    """{feature: mm} in force: the profile's, updated by --feature-tolerance ({} turns off)."""
-    if opts.feature_tolerance is not None and not opts.feature_tolerance:
-        return {}
-    return {**profile.limits.feature_tolerance_mm, **(opts.feature_tolerance or {})}
-
-
-def tolerance_for(path, program, profile, opts: Options):
+def tolerance_for(path, program, req: PlanRequest):
     """The tolerance the planner gets: the scalar E_max when no feature has its own (the
-    single-tolerance path, unchanged), else (N,) one per segment from each move's feature.
-    Returns (tolerance, per-segment features, notes)."""
+    single-tolerance path, unchanged), else (N,) one per segment from each move's feature
+    (``req``: plan.request.PlanRequest). Returns (tolerance, per-segment features, notes)."""
     from .gcode.features import present, segment_features, segment_tolerance
-    scalar = opts.tolerance_mm or profile.limits.tolerance_mm
-    table = feature_tolerance_map(profile, opts)
+    scalar = req.tolerance_mm
+    table = req.feature_tolerance_mm
     feats = segment_features(path, program)
     if not table:
         return scalar, feats, []
@@ -119,36 +113,28 @@ def path_for(program, profile, fw_limits=None):
                       e_scale=fw_limits.extrude_factor)
 
 
-def plan(path, profile, opts: Options, fw_limits=None, tolerance=None):
-    """The Schedule of the chosen method, under the speed policy (plan.speed): the planners
-    see the path with each move's ceiling as its feed. ``tolerance``: scalar or (N,) per
-    segment (:func:`tolerance_for`); None: the scalar E_max."""
-    path = planning_path(path, opts.speed, profile, opts.vmax_mm_s)
-    vmax = plan_vmax(profile, opts.speed, opts.vmax_mm_s)
-    if opts.method == "kinematic":
-        return plan_kinematic(path, profile, use_slicer_feed=True,
-                              vmax_mm_s=vmax, amax_mm_s2=opts.amax_mm_s2,
+def plan(path, profile, req: PlanRequest, fw_limits=None, tolerance=None):
+    """The Schedule of the request's method (plan.request.PlanRequest), under its speed
+    policy (plan.speed): the planners see the path with each move's ceiling as its feed.
+    ``tolerance``: scalar or (N,) per segment (:func:`tolerance_for`); None: the scalar
+    E_max."""
+    path = planning_path(path, req.speed, profile, req.vmax_mm_s)
+    if req.method == "kinematic":
+        return plan_kinematic(path, profile, use_slicer_feed=req.use_slicer_feed,
+                              vmax_mm_s=req.plan_vmax_mm_s, amax_mm_s2=req.amax_mm_s2,
                               fw_limits=fw_limits)
     try:
-        from .optimize import plan_schedule
+        from .optimize.methods import plan_request
     except ImportError:
-        raise FeedOptError(f"method '{opts.method}' is not available in this build; use "
+        raise FeedOptError(f"method '{req.method}' is not available in this build; use "
                            "--method kinematic") from None
-    if tolerance is None:
-        tolerance = opts.tolerance_mm or profile.limits.tolerance_mm
-    return plan_schedule(opts.method, path, profile,
-                         tolerance_mm=tolerance,
-                         stringency=opts.stringency or profile.limits.stringency,
-                         vmax_mm_s=vmax, amax_mm_s2=opts.amax_mm_s2,
-                         fw_limits=fw_limits, use_slicer_feed=True)
+    return plan_request(req, path, profile, tolerance, fw_limits=fw_limits)
 
 
-def input_time_s(path, profile, opts: Options, fw_limits=None) -> float:
+def input_time_s(path, profile, req: PlanRequest, fw_limits=None) -> float:
     """Time the original file takes under the same limits: the firmware plans it at the
     slicer's feeds (capped by the plan's V_max, plan.speed.plan_vmax)."""
-    vmax, axis_v, axis_a = effective_limits(profile, plan_vmax(profile, opts.speed,
-                                                                opts.vmax_mm_s),
-                                            opts.amax_mm_s2)
+    vmax, axis_v, axis_a = effective_limits(profile, req.plan_vmax_mm_s, req.amax_mm_s2)
     tr = plan_trapezoids(path, vmax_mm_s=vmax, axis_vmax_mm_s=axis_v, axis_amax_mm_s2=axis_a,
                          firmware=profile.firmware, use_slicer_feed=True, fw_limits=fw_limits)
     return tr.duration_s
@@ -199,11 +185,14 @@ def execute_check(out_program, profile, tol_mm: float) -> dict:
             "rms_gamma_mm": round(m.rms_gamma_mm, 6)}
 
 
-def run_settings(profile, opts: Options) -> str:
+def run_settings(profile, opts: Options, req: PlanRequest | None = None) -> str:
     """The settings a written file was made with, as its ident line records them: the
     machine (and a digest of its profile file), method, speed policy, tolerance, stringency,
-    the limits given and the mode. ``batch`` compares them to re-process what changed."""
+    the limits given and the mode. ``batch`` compares them to re-process what changed.
+    ``req``: the run's PlanRequest (made from ``opts`` when not given)."""
     import hashlib
+
+    req = req or PlanRequest.from_options(profile, opts)
 
     digest = "builtin"
     if profile.source_path:
@@ -212,13 +201,12 @@ def run_settings(profile, opts: Options) -> str:
         except OSError:
             digest = "?"
     g = (lambda v: "-" if v is None else f"{v:g}")
-    return (f"machine {profile.name}@{digest}, method {opts.method}, speed {opts.speed}, "
-            f"tolerance {g(opts.tolerance_mm or profile.limits.tolerance_mm)}, "
-            f"stringency {g(opts.stringency or profile.limits.stringency)}, "
-            f"vmax {g(opts.vmax_mm_s)}, amax {g(opts.amax_mm_s2)}, mode {opts.mode}"
+    return (f"machine {profile.name}@{digest}, method {req.method}, speed {req.speed}, "
+            f"tolerance {g(req.tolerance_mm)}, stringency {g(req.stringency)}, "
+            f"vmax {g(req.vmax_mm_s)}, amax {g(req.amax_mm_s2)}, mode {opts.mode}"
             # outputs made before --accel kept the file's accelerations: no word is ``file``
             + (f", accel {opts.accel}" if opts.accel != "file" else "")
-            + "".join(f", {k} {g(v)}" for k, v in feature_tolerance_map(profile, opts).items()))
+            + "".join(f", {k} {g(v)}" for k, v in req.feature_tolerance_mm.items()))
 
 
 def check_run_outputs(in_path, out_path, opts: Options, extra: dict | None = None,
@@ -247,6 +235,7 @@ def optimize_file(in_path, out_path, profile, opts: Options, progress=None) -> R
     in_path = pathlib.Path(in_path)
     out_path = pathlib.Path(out_path) if out_path is not None else in_path
     targets = check_run_outputs(in_path, out_path, opts)
+    req = PlanRequest.from_options(profile, opts)
     wall = {}
     t0 = time.perf_counter()
     say("reading")
@@ -268,12 +257,12 @@ def optimize_file(in_path, out_path, profile, opts: Options, progress=None) -> R
         raise GCodeError(f"{in_path}: no move travels in X, Y or Z; nothing to re-time")
     wall["path"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    check_plan_size(path, profile, opts.vmax_mm_s, opts.amax_mm_s2, opts.speed == "slicer",
+    check_plan_size(path, profile, req.vmax_mm_s, req.amax_mm_s2, req.speed == "slicer",
                     fw_limits, where=str(in_path))
-    say(f"planning {path.n_segments:,} moves ({opts.method})")
-    tol, seg_feats, tol_notes = tolerance_for(path, program, profile, opts)
-    sched = plan(path, profile, opts, fw_limits, tol)
-    t_in = input_time_s(path, profile, opts, fw_limits)
+    say(f"planning {path.n_segments:,} moves ({req.method})")
+    tol, seg_feats, tol_notes = tolerance_for(path, program, req)
+    sched = plan(path, profile, req, fw_limits, tol)
+    t_in = input_time_s(path, profile, req, fw_limits)
     wall["plan"] = time.perf_counter() - t0
     # write, verify and time: a few hundred thousand short-lived objects each and no reference
     # cycle; with the two programs alive, every pass of the cyclic collector walks millions of
@@ -290,9 +279,9 @@ def optimize_file(in_path, out_path, profile, opts: Options, progress=None) -> R
         result = write(program, path, sched, profile, mode=opts.mode, override=override,
                        accel_mm_s2=writer_accel(path, profile, fw_limits, amax_w),
                        cells=cells, clamp=clamp,
-                       feed_cap_mm_s=planning_path(path, opts.speed, profile,
-                                                   opts.vmax_mm_s).feed_mm_s,
-                       run_settings=run_settings(profile, opts),
+                       feed_cap_mm_s=planning_path(path, req.speed, profile,
+                                                   req.vmax_mm_s).feed_mm_s,
+                       run_settings=run_settings(profile, opts, req),
                        settings=None if cells is None and not firmware.raises_configured(profile)
                        else firmware.accel_settings(program, profile, clamp, override))
         wall["write"] = time.perf_counter() - t0
@@ -319,13 +308,12 @@ def optimize_file(in_path, out_path, profile, opts: Options, progress=None) -> R
     if sched.method != "kinematic":
         t0 = time.perf_counter()
         say("executing the output on the firmware model and plant")
-        executed = execute_check(out_program, configured,
-                                 opts.tolerance_mm or profile.limits.tolerance_mm)
+        executed = execute_check(out_program, configured, req.tolerance_mm)
         wall["execute"] = time.perf_counter() - t0
     if opts.plot:
         with output_path(targets["--plot"]) as tmp:
             plot_run(path, sched, tmp, title=f"{in_path.name}: {sched.method} on {profile.name}",
-                     tolerance_mm=opts.tolerance_mm or profile.limits.tolerance_mm,
+                     tolerance_mm=req.tolerance_mm,
                      predicted_error_mm=sched.info.get("predicted_bound_mm"))
     # an output that runs slower than the input is not written unless asked (--allow-slower):
     # in place the file stays as it was, with -o the input goes there unchanged
@@ -347,10 +335,9 @@ def optimize_file(in_path, out_path, profile, opts: Options, progress=None) -> R
     info = sched.info
     rep = Report(
         input=str(in_path), output=None if opts.dry_run else str(out_path),
-        machine=profile.name, method=sched.method, mode=opts.mode, speed=opts.speed,
+        machine=profile.name, method=sched.method, mode=opts.mode, speed=req.speed,
         accel=opts.accel,
-        tolerance_mm=opts.tolerance_mm or profile.limits.tolerance_mm,
-        stringency=opts.stringency or profile.limits.stringency,
+        tolerance_mm=req.tolerance_mm, stringency=req.stringency,
         moves=len(program.moves), moves_changed=0 if keep else result.moves_changed,
         lines_in=len(program.lines),
         lines_written=len(program.lines) if keep else result.lines_written,
@@ -377,7 +364,7 @@ def optimize_file(in_path, out_path, profile, opts: Options, progress=None) -> R
                   if info.get("accel_search") else {})})
     rep.extra["time_split_s"] = time_split(
         fw_in=fw_in, fw_in_raised=fw_in_plan, t_in=t_in, fw_out=fw_in if keep else fw_out,
-        plan_s=sched.duration_s, kinematic_s=_kinematic_time(sched, path, profile, opts,
+        plan_s=sched.duration_s, kinematic_s=_kinematic_time(sched, path, profile, req,
                                                              fw_limits), keep=keep)
     if info.get("accel_chosen_mm_s2") and not keep:
         tried = info["accel_search"]
@@ -450,7 +437,7 @@ def optimize_file(in_path, out_path, profile, opts: Options, progress=None) -> R
     if feats_rep:
         rep.extra["features"] = feats_rep
         rep.extra["feature_tolerance_mm"] = {k: (None if v == float("inf") else v) for k, v in
-                                             feature_tolerance_map(profile, opts).items()}
+                                             req.feature_tolerance_mm.items()}
     rep.notes.extend(tol_notes)
     return rep
 
@@ -463,18 +450,18 @@ def _accel_text(ov, flavour: str) -> str:
             f"X{ov.max_accel_xy_mm_s2[0]:g} Y{ov.max_accel_xy_mm_s2[1]:g} mm/s²")
 
 
-def _kinematic_time(sched, path, profile, opts: Options, fw_limits) -> float:
+def _kinematic_time(sched, path, profile, req: PlanRequest, fw_limits) -> float:
     """The firmware's own plan of the path under the run's speed policy and limits, s: the
     plan itself for ``kinematic``, what the offline optimizer measured it at, else planned."""
     if sched.method == "kinematic":
         return sched.duration_s
     if sched.info.get("kinematic_time_s") is not None:
         return float(sched.info["kinematic_time_s"])
-    vmax = plan_vmax(profile, opts.speed, opts.vmax_mm_s)
-    _, axis_v, axis_a = effective_limits(profile, vmax, opts.amax_mm_s2)
-    return plan_trapezoids(planning_path(path, opts.speed, profile, opts.vmax_mm_s),
+    vmax = req.plan_vmax_mm_s
+    _, axis_v, axis_a = effective_limits(profile, vmax, req.amax_mm_s2)
+    return plan_trapezoids(planning_path(path, req.speed, profile, req.vmax_mm_s),
                            vmax_mm_s=vmax, axis_vmax_mm_s=axis_v, axis_amax_mm_s2=axis_a,
-                           firmware=profile.firmware, use_slicer_feed=True,
+                           firmware=profile.firmware, use_slicer_feed=req.use_slicer_feed,
                            fw_limits=fw_limits).duration_s
 
 

@@ -13,6 +13,7 @@ import click
 from ..inputs import check_input
 from ..outputs import check_outputs, output_file, output_path
 from ..pipeline import PLOT_SUFFIXES, check_plan_size, path_for, read_for
+from ..plan.request import PlanRequest
 from ..plot import plot_compare
 from ..profile import load_profile
 from ..vm.plant import Plant
@@ -93,8 +94,9 @@ def compare(gcode, machine, methods, seed, effects, nominal, tolerance, stringen
     targets = check_outputs({"--json": json_path, "--plot": png},
                             inputs=[gcode, *profile_files(machine)],
                             suffixes={"--plot": PLOT_SUFFIXES})
-    tol = tolerance or profile.limits.tolerance_mm
-    eta = stringency or profile.limits.stringency
+    req = PlanRequest.of(profile, tolerance_mm=tolerance, stringency=stringency,
+                         vmax_mm_s=vmax, amax_mm_s2=amax)
+    tol, eta = req.tolerance_mm, req.stringency
     path = path_for(read_for(Path(gcode), profile), profile)
     check_plan_size(path, profile, vmax, amax, where=str(gcode))
     plant = Plant(profile, seed=seed, effects=effects, nominal=nominal)

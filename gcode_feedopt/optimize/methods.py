@@ -28,6 +28,7 @@ from scipy.stats import norm
 
 from ..errors import FeedOptError
 from ..gcode.schedule import Schedule, SegmentPlan, SlowdownCells
+from ..plan.request import PlanRequest
 from ..plan.kinematic import (effective_limits, plan_kinematic, plan_trapezoids, planner_limits,
                               segment_plan)
 from ..twin.extensions import extra_variance_mm2, motion_offsets
@@ -97,13 +98,14 @@ def largest_passing_scale(run, budget: float, *, lo: float = CONSERVATIVE_MIN_SC
     return (*best, trials)
 
 
-def plan_conservative(path, profile, *, tolerance_mm, stringency, plant, vmax_mm_s=None,
-                      amax_mm_s2=None, fw_limits=None, use_slicer_feed: bool = False):
+def plan_conservative(path, profile, req: PlanRequest, *, tolerance_mm: float, plant,
+                      fw_limits=None):
     """Largest common scale of V_max and A_max (bisection) whose trapezoid plan keeps
-    RMS γ / E_max ≤ 1 − η on ``plant``."""
-    vmax, _, axis_a = effective_limits(profile, vmax_mm_s, amax_mm_s2)
+    RMS γ / E_max ≤ 1 − η on ``plant`` (``tolerance_mm``: the scalar E_max)."""
+    use_slicer_feed = req.use_slicer_feed
+    vmax, _, axis_a = effective_limits(profile, req.plan_vmax_mm_s, req.amax_mm_s2)
     amax = min(axis_a["x"], axis_a["y"])
-    budget = 1.0 - stringency
+    budget = 1.0 - req.stringency
     t0 = time.perf_counter()
 
     def run(scale):
@@ -260,18 +262,18 @@ def search_acceleration(path, profile, first, plan_at, *, vmax, axis_v, axis_a, 
     return best, chosen, tried
 
 
-def plan_offline(path, profile, method: str, *, tolerance_mm: float, stringency: float,
-                 vmax_mm_s=None, amax_mm_s2=None, plant=None, fw_limits=None,
-                 settings=None, use_slicer_feed: bool = False) -> Schedule:
+def plan_offline(path, profile, req: PlanRequest, *, tolerance_mm, plant=None,
+                 fw_limits=None, settings=None) -> Schedule:
     """Offline plan of a whole file for pb | pidd | oracle: the firmware's own plan slowed
     down locally until the twin (or, for the oracle, the plant) keeps the chance bound on
     every sample (optimize.slowdown; the window LP of mpc.py is the full method it is tested
-    against)."""
+    against). ``tolerance_mm``: the E_max the plan keeps, scalar or (N,) per segment."""
+    method, stringency, use_slicer_feed = req.method, req.stringency, req.use_slicer_feed
     if method == "dd":
         raise FeedOptError("method dd learns from data only (zero prior) and has no data offline; "
                            "use --method pidd, or run dd online on the virtual machine with "
                            "`gcode-feedopt compare`")
-    vmax, axis_v, axis_a = effective_limits(profile, vmax_mm_s, amax_mm_s2)
+    vmax, axis_v, axis_a = effective_limits(profile, req.plan_vmax_mm_s, req.amax_mm_s2)
     limits = planner_limits(path, vmax_mm_s=vmax, axis_vmax_mm_s=axis_v,
                             axis_amax_mm_s2=axis_a, firmware=profile.firmware,
                             fw_limits=fw_limits, use_slicer_feed=use_slicer_feed)
@@ -457,24 +459,54 @@ def plan_schedule(method: str, path, profile, *, tolerance_mm: float, stringency
                   vmax_mm_s: float | None = None, amax_mm_s2: float | None = None,
                   plant=None, online: bool = False, settings: MpcSettings | None = None,
                   fw_limits=None, use_slicer_feed: bool = False, **opts) -> Schedule:
-    """The Schedule of ``method`` on ``path`` (see the module docstring).
+    """The Schedule of ``method`` on ``path`` (see the module docstring): :func:`plan_request`
+    of the request these values make.
 
     Args:
         method: kinematic | conservative | pb | dd | pidd | oracle.
         path: gcode.path.Path.
         profile: MachineProfile.
-        tolerance_mm: E_max, mm. stringency: η in (0, 1).
+        tolerance_mm: E_max, mm, scalar or (N,) per segment. stringency: η in (0, 1).
         vmax_mm_s, amax_mm_s2: override the profile's V_max and X/Y A_max.
+        plant, online, settings, fw_limits, opts: as :func:`plan_request` takes them.
+        use_slicer_feed: never faster than the slicer's F (every method plans below the
+            firmware's plan at those feeds).
+    """
+    scalar = (scalar_tolerance(np.asarray(tolerance_mm, float)) if np.ndim(tolerance_mm)
+              else tolerance_mm)
+    req = PlanRequest(method=method, tolerance_mm=scalar, stringency=stringency,
+                      vmax_mm_s=vmax_mm_s, amax_mm_s2=amax_mm_s2, plan_vmax_mm_s=vmax_mm_s,
+                      use_slicer_feed=use_slicer_feed)
+    return plan_request(req, path, profile, tolerance_mm, plant=plant, online=online,
+                        settings=settings, fw_limits=fw_limits, **opts)
+
+
+def plan_request(req: PlanRequest, path, profile, tolerance_mm=None, *, plant=None,
+                 online: bool = False, settings: MpcSettings | None = None, fw_limits=None,
+                 **opts) -> Schedule:
+    """The Schedule of ``req.method`` on ``path`` (see the module docstring).
+
+    Args:
+        req: plan.request.PlanRequest (method, stringency, V_max under the speed policy,
+            --amax, use_slicer_feed).
+        path: gcode.path.Path.
+        profile: MachineProfile.
+        tolerance_mm: the E_max the plan keeps, mm: scalar or (N,) per segment
+            (pipeline.tolerance_for); None: ``req.tolerance_mm``.
         plant: vm.plant.Plant the method is tuned on (conservative), knows (oracle) or runs
             on (online). Default: the profile's nominal plant (the FRF set's mean response).
         online: learn from the plant's measurements window by window (pb never learns).
         settings: MpcSettings (window length, horizon, solver, ...) of the window optimizer.
-        use_slicer_feed: never faster than the slicer's F (every method plans below the
-            firmware's plan at those feeds).
+        fw_limits: vm.firmware.move_limits of the file.
         opts: ``optimizer`` (``slowdown`` offline by default, ``window`` online and on
             request), ``seed`` (the default plant), and the window optimizer's ``free``,
             ``screen``, ``workers``.
     """
+    method, stringency = req.method, req.stringency
+    vmax_mm_s, amax_mm_s2 = req.plan_vmax_mm_s, req.amax_mm_s2
+    use_slicer_feed = req.use_slicer_feed
+    if tolerance_mm is None:
+        tolerance_mm = req.tolerance_mm
     if method not in METHODS:
         raise FeedOptError(f"unknown method {method!r}; use one of {', '.join(METHODS)}")
     if not (0.5 <= stringency < 1.0):
@@ -507,13 +539,11 @@ def plan_schedule(method: str, path, profile, *, tolerance_mm: float, stringency
     if plant is None and method in ("conservative", "oracle"):
         plant = Plant(profile, seed=int(opts.get("seed", 0)), nominal=True)
     if method == "conservative":
-        return plan_conservative(path, profile, tolerance_mm=tolerance_mm, stringency=stringency,
-                                 plant=plant, vmax_mm_s=vmax_mm_s, amax_mm_s2=amax_mm_s2,
-                                 fw_limits=fw_limits, use_slicer_feed=use_slicer_feed)
+        return plan_conservative(path, profile, req, tolerance_mm=tolerance_mm, plant=plant,
+                                 fw_limits=fw_limits)
     if optimizer == "slowdown":
-        return plan_offline(path, profile, method, tolerance_mm=tolerance_mm,
-                            stringency=stringency, vmax_mm_s=vmax_mm_s, amax_mm_s2=amax_mm_s2,
-                            plant=plant, fw_limits=fw_limits, use_slicer_feed=use_slicer_feed)
+        return plan_offline(path, profile, req, tolerance_mm=tolerance_mm, plant=plant,
+                            fw_limits=fw_limits)
     if method == "oracle":
         predictor = PlantPredictor(plant)
     else:

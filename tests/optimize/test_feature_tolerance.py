@@ -14,6 +14,7 @@ from gcode_feedopt.gcode.features import (FEATURES, TAG_TO_FEATURE, canonical,
                                           parse_feature_tolerance, tag_of)
 from gcode_feedopt.gcode.reader import read_program
 from gcode_feedopt.pipeline import Options, path_for, plan, read_for, run_settings, tolerance_for
+from gcode_feedopt.plan.request import PlanRequest
 from gcode_feedopt.profile import load_profile
 
 from ..conftest import GCODE_DIR
@@ -63,8 +64,8 @@ def test_untagged_file_falls_back_to_one_tolerance():
     prog = read_program(_head(UNTAGGED, 3000), UNTAGGED.name, flavour="marlin")
     assert {m.feature for m in prog.moves} <= {"", "travel"}
     path = path_for(prog, profile)
-    tol, _, notes = tolerance_for(path, prog, profile,
-                                  Options(feature_tolerance={"outer_wall": 0.05}))
+    req = PlanRequest.from_options(profile, Options(feature_tolerance={"outer_wall": 0.05}))
+    tol, _, notes = tolerance_for(path, prog, req)
     assert np.ndim(tol) == 0 and tol == profile.limits.tolerance_mm
     assert len(notes) == 1 and "no slicer feature tags" in notes[0]
 
@@ -120,9 +121,10 @@ def cura_excerpt(tmp_path_factory):
 
 def _plan(cura_excerpt, table):
     profile, prog, path = cura_excerpt
-    opts = Options(method="pidd", tolerance_mm=0.1, feature_tolerance=table)
-    tol, feats, _ = tolerance_for(path, prog, profile, opts)
-    return plan(path, profile, opts, tolerance=tol), tol, feats
+    req = PlanRequest.from_options(profile, Options(method="pidd", tolerance_mm=0.1,
+                                                    feature_tolerance=table))
+    tol, feats, _ = tolerance_for(path, prog, req)
+    return plan(path, profile, req, tolerance=tol), tol, feats
 
 
 @pytest.fixture(scope="module")
@@ -137,7 +139,8 @@ def test_scalar_path_identity(cura_excerpt, scalar_plan):
     assert np.ndim(tol) == 0
     profile, prog, path = cura_excerpt
     arr = np.full(path.n_segments, 0.1)
-    same = plan(path, profile, Options(method="pidd"), tolerance=arr)
+    same = plan(path, profile, PlanRequest.from_options(profile, Options(method="pidd")),
+                tolerance=arr)
     assert np.array_equal(same.s_mm, sched.s_mm)
     assert "outer_wall" not in run_settings(profile, Options())
 

@@ -13,6 +13,7 @@ from gcode_feedopt.gcode.path import build_path
 from gcode_feedopt.gcode.reader import read_program
 from gcode_feedopt.gcode.writer import T_NEW, write
 from gcode_feedopt.pipeline import Options, path_for, plan, read_for
+from gcode_feedopt.plan.request import PlanRequest
 from gcode_feedopt.plan.kinematic import writer_accel
 from gcode_feedopt.plan.speed import feed_ceiling, plan_vmax, planning_path
 from gcode_feedopt.profile import load_profile
@@ -56,7 +57,7 @@ def test_default_never_faster_than_sliced(src, method, tmp_path):
     program = read_for(cut, PROFILE)
     fw = firmware.move_limits(program, PROFILE)
     path = path_for(program, PROFILE, fw)
-    sched = plan(path, PROFILE, opts, fw)
+    sched = plan(path, PROFILE, PlanRequest.from_options(PROFILE, opts), fw)
     # the plan itself: no sample interval faster than the F of the segments it spans
     ka, kb = path.segment_at(sched.s_mm[:-1]), path.segment_at(sched.s_mm[1:])
     f = path.feed_mm_s
