@@ -6,7 +6,7 @@ bound on the contour error holds on every constrained sample):
 - window.py + mpc.py: the paper's receding-window LP (pure window problem; the driver with
   the longer prediction horizon, terminal rest, re-linearisation and the safe fallback); the
   online method on the virtual machine, where the twin learns between windows;
-- slowdown.py: whole-file local slow-down of F verified by the whole-trajectory twin; the
+- slowdown/: whole-file local slow-down of F verified by the whole-trajectory twin; the
   offline default for G-code files (cycle times within 1 % of the window LP's, 11-87x less
   compute; docs/optimizer.md §4).
 

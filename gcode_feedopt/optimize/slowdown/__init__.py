@@ -58,6 +58,12 @@ factor counts only the uncertainty at rest as fixed and scales the rest with the
 
 The plan stays within F everywhere (every limit is F's limit times r ≤ 1); ``cells`` of the
 result tell the writer where and how much it was slowed.
+
+The modules, one step each (imports go one way, this module → groups → loop → state → grid):
+grid.py (PlanGrid: steps 1–2), evaluators.py (TwinEvaluator, PlantEvaluator: step 3),
+state.py (PlanState: the current plan, what is predicted again, windowed prediction),
+loop.py (steps 4–5 and the whole-file checks), groups.py (worker groups); here the settings,
+the result and :func:`plan_slowdown`.
 """
 
 from __future__ import annotations
