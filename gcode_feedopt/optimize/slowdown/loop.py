@@ -67,7 +67,9 @@ class _Loop:
             if viol.size == 0:
                 return
             self.stats["rounds"] += 1
-            if not self._round(rnd, viol, out, starts):
+            changed = self._round(rnd, viol, out, starts)
+            del out  # the state's arrays are joined again next round (PlanState.assemble)
+            if not changed:
                 return
 
     def _round(self, rnd, viol, out, starts) -> bool:
@@ -151,6 +153,7 @@ class _Loop:
             before = state.scale.copy()
             state.set_scale(np.where(slow, np.minimum(1.0, before * g), before))
             viol, out, starts = self.violations()
+            del out  # not held while settle() evaluates again (PlanState.assemble)
             if viol.size:
                 _, cells = self.cause(starts, viol, 1.5)
                 back = np.zeros(self.grid.n_cells, bool)
