@@ -94,7 +94,7 @@ def schedule_cases(src: pathlib.Path, machine: str, modes=("refeed", "sampled"))
     from gcode_feedopt.pipeline import path_for, read_for
     from gcode_feedopt.plan.kinematic import plan_kinematic, writer_accel
     from gcode_feedopt.profile import load_profile
-    from gcode_feedopt.vm import firmware
+    from gcode_feedopt import firmware
 
     profile = load_profile(machine)
     fw = profile.firmware

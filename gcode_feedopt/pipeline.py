@@ -25,7 +25,8 @@ from .inputs import check_input
 from .outputs import check_outputs, output_file, output_path, write_bytes
 from .plot import plot_run
 from .report import Report
-from .vm import firmware
+from . import firmware
+from .vm.firmware import estimate_time_s, execute
 from .vm.metrics import evaluate
 from .vm.plant import Plant
 
@@ -46,7 +47,7 @@ class Options:
     mode: str = "refeed"
     #: plan.speed.SPEEDS: ``slicer`` (every move at most its sliced F) or ``machine``
     speed: str = "slicer"
-    #: vm.firmware.ACCELS: ``plan`` (the plan's accelerations override lower ones the file
+    #: firmware.ACCELS: ``plan`` (the plan's accelerations override lower ones the file
     #: sets) or ``file`` (the file's own kept)
     accel: str = "plan"
     #: write the output even when it runs slower than the input
@@ -95,22 +96,12 @@ def read_for(path, profile):
 
 def path_for(program, profile, fw_limits=None):
     """The Path of a program. E-only moves (retractions, primes) are not re-timed: they last
-    what the firmware gives them (``fw_limits``: firmware.move_limits of the program, found
-    when not given), so the plan's time is the firmware's."""
+    what the firmware gives them (``fw_limits``: firmware.MoveLimits of the program, found
+    when not given; the firmware variant's e_only_caps), so the plan's time is the
+    firmware's."""
     if fw_limits is None:
         fw_limits = firmware.move_limits(program, profile)
-    if profile.firmware.flavour != "klipper":
-        return build_path(program, e_feed_cap_mm_s=fw_limits.e_feed_mm_s,
-                          e_accel_mm_s2=fw_limits.e_accel_mm_s2)
-    # Klipper: E scaled by M221; minimum_cruise_ratio's pseudo-accel caps the peak of an
-    # E-only move at √(a_pseudo·|dE|) (vm.firmware: its look-ahead on a lone block)
-    de = np.abs(np.array([mv.de_mm for mv in program.moves], dtype=float))
-    d = de * fw_limits.extrude_factor
-    pseudo = np.minimum(fw_limits.e_accel_mm_s2,
-                        fw_limits.accel_mm_s2 * (1.0 - fw_limits.min_cruise_ratio))
-    cap = np.minimum(fw_limits.e_feed_mm_s, np.sqrt(pseudo * d))
-    return build_path(program, e_feed_cap_mm_s=cap, e_accel_mm_s2=fw_limits.e_accel_mm_s2,
-                      e_scale=fw_limits.extrude_factor)
+    return build_path(program, **firmware.firmware_for(profile).e_only_caps(program, fw_limits))
 
 
 def plan(path, profile, req: PlanRequest, fw_limits=None, tolerance=None):
@@ -170,11 +161,12 @@ def check_plan_size(path, profile, vmax_mm_s=None, amax_mm_s2=None, use_slicer_f
     return tr.duration_s
 
 
-def execute_check(out_program, profile, tol_mm: float) -> dict:
+def execute_check(out_program, profile, tol_mm: float, replay=None) -> dict:
     """End to end: the written G-code run by the firmware model and the profile's nominal
     plant (no unknown effects): executed time and contour error, to set against the plan's
-    time and predicted contour error in the report."""
-    tr = firmware.execute(out_program, profile)
+    time and predicted contour error in the report. ``replay``: the output's settings
+    replayed for ``profile`` (firmware.Replay), made when not given."""
+    tr = execute(out_program, profile, replay)
     out = Plant(profile, seed=0, nominal=True).simulate(tr)
     # every figure over the samples the metric judges (extruding ones), like the plan's
     m = evaluate(tr, out.actual_mm, tol_mm)
@@ -246,11 +238,13 @@ def optimize_file(in_path, out_path, profile, opts: Options, progress=None) -> R
             f"{in_path}:{program.processed_line + 1}: already processed by gcode-feedopt; "
             "pass --force to process it again (re-slice for the best result)")
     t0 = time.perf_counter()
-    # --accel plan: the plan's accelerations where the file's lines lower them (the writer
-    # adds a line after each such line); the planner, the clamp and the slowed stretches'
-    # restores see the plan's values
-    override = firmware.accel_override(program, profile, opts.accel)
-    fw_limits = firmware.move_limits(program, profile, override=override)
+    # the file's settings, replayed once; --accel plan: the plan's accelerations where the
+    # file's lines lower them (the writer adds a line after each such line); the planner, the
+    # clamp and the slowed stretches' restores see the plan's values (``replay``)
+    file_replay = firmware.Replay(program, profile)
+    override = firmware.accel_override(program, profile, opts.accel, file_replay)
+    replay = file_replay.overridden(override)
+    fw_limits = replay.move_limits()
     with gc_paused():
         path = path_for(program, profile, fw_limits)
     if path.n_segments == 0:
@@ -275,7 +269,7 @@ def optimize_file(in_path, out_path, profile, opts: Options, progress=None) -> R
         # as --amax would be: the file's own settings clamped to it, M201 before the first move
         amax_w = sched.info.get("accel_chosen_mm_s2") or opts.amax_mm_s2
         axis_a = effective_limits(profile, opts.vmax_mm_s, amax_w)[2]
-        clamp = firmware.accel_clamp(program, profile, axis_a, override)
+        clamp = replay.accel_clamp(axis_a)
         result = write(program, path, sched, profile, mode=opts.mode, override=override,
                        accel_mm_s2=writer_accel(path, profile, fw_limits, amax_w),
                        cells=cells, clamp=clamp,
@@ -283,7 +277,7 @@ def optimize_file(in_path, out_path, profile, opts: Options, progress=None) -> R
                                                    req.vmax_mm_s).feed_mm_s,
                        run_settings=run_settings(profile, opts, req),
                        settings=None if cells is None and not firmware.raises_configured(profile)
-                       else firmware.accel_settings(program, profile, clamp, override))
+                       else replay.accel_settings(clamp))
         wall["write"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         fw = profile.firmware
@@ -296,19 +290,21 @@ def optimize_file(in_path, out_path, profile, opts: Options, progress=None) -> R
         # to tell the saving from raised limits apart from the plan's
         configured = firmware.as_configured(profile)
         say("timing both files on the firmware model")
-        fw_in = firmware.estimate_time_s(program, configured)
-        fw_out = firmware.estimate_time_s(out_program, configured)
+        fw_in = estimate_time_s(program, configured,
+                                replay=file_replay if configured is profile else None)
+        out_replay = firmware.Replay(out_program, configured)
+        fw_out = estimate_time_s(out_program, configured, replay=out_replay)
         fw_in_raised = (fw_in if configured is profile
-                        else firmware.estimate_time_s(program, profile))
+                        else estimate_time_s(program, profile, replay=file_replay))
         # ... and at the plan's accelerations over the file's own (--accel plan)
         fw_in_plan = (fw_in_raised if override is None
-                      else firmware.estimate_time_s(program, profile, override=override))
+                      else estimate_time_s(program, profile, replay=replay))
         wall["firmware"] = time.perf_counter() - t0
     executed = None
     if sched.method != "kinematic":
         t0 = time.perf_counter()
         say("executing the output on the firmware model and plant")
-        executed = execute_check(out_program, configured, req.tolerance_mm)
+        executed = execute_check(out_program, configured, req.tolerance_mm, out_replay)
         wall["execute"] = time.perf_counter() - t0
     if opts.plot:
         with output_path(targets["--plot"]) as tmp:
@@ -380,22 +376,22 @@ def optimize_file(in_path, out_path, profile, opts: Options, progress=None) -> R
         conf = ", ".join(f"{k} {v:g}" for k, v in (
             [("accel", fw_c.configured_accel_mm_s2)] if fw_c.configured_accel_mm_s2 else []) + (
             [(f"max {a}", fw_c.configured_max_accel_mm_s2[a]) for a in "xy"]
-            if fw_c.configured_max_accel_mm_s2 and fw_c.flavour != "klipper" else []))
+            if fw_c.configured_max_accel_mm_s2 and replay.firmware.axis_max_accel else []))
         rep.notes.append(f"the file sets {' and '.join(result.plan_limit_lines)} before its first "
                          f"move (the plan's limits; {profile.name}'s firmware is configured to "
                          f"{conf} mm/s²) and the configured values again after its last; the "
                          f"input alone would take {fw_in_raised:.1f} s at those limits, "
                          f"{fw_in:.1f} s as configured")
     if override is not None and not keep:
-        fw_o = profile.firmware
         kinds = sorted({name for _, name in override.sources})
         n_src = len(override.sources)
         rep.notes.append(
             f"--accel plan: {n_src} line{'s' if n_src != 1 else ''} of the file set "
             f"accelerations below the plan's ({', '.join(kinds)}); after each (after the homing "
             f"that follows it, if any) the file sets the plan's again "
-            f"({_accel_text(override, fw_o.flavour)}; {result.override_lines} lines, junction "
-            f"settings and retraction accelerations kept), and the file's own after the last "
+            f"({replay.firmware.describe_accels(override)}; {result.override_lines} lines, "
+            f"junction settings and retraction accelerations kept), and the file's own after "
+            f"the last "
             f"move; the input alone would take {fw_in_plan:.1f} s at the plan's accelerations; "
             "--accel file keeps the file's")
         tower = next((i for i, ln in enumerate(program.lines)
@@ -440,14 +436,6 @@ def optimize_file(in_path, out_path, profile, opts: Options, progress=None) -> R
                                              req.feature_tolerance_mm.items()}
     rep.notes.extend(tol_notes)
     return rep
-
-
-def _accel_text(ov, flavour: str) -> str:
-    """The plan's accelerations an override sets, as a person reads them."""
-    if flavour == "klipper":
-        return f"ACCEL {ov.accel_print_mm_s2:g} mm/s²"
-    return (f"M204 P{ov.accel_print_mm_s2:g} T{ov.accel_travel_mm_s2:g}, M201 "
-            f"X{ov.max_accel_xy_mm_s2[0]:g} Y{ov.max_accel_xy_mm_s2[1]:g} mm/s²")
 
 
 def _kinematic_time(sched, path, profile, req: PlanRequest, fw_limits) -> float:

@@ -37,7 +37,7 @@ class Report:
     time_source: str
     #: speed policy (plan.speed): ``slicer`` — no move above its sliced F — or ``machine``
     speed: str = "slicer"
-    #: acceleration policy (vm.firmware.ACCELS): ``plan`` — the plan's accelerations override
+    #: acceleration policy (firmware.ACCELS): ``plan`` — the plan's accelerations override
     #: lower ones the file sets — or ``file``
     accel: str = "plan"
     dry_run: bool = False

@@ -14,7 +14,7 @@ from ..plan.speed import SPEEDS
 from ..procs import signal_name
 from ..profile import load_profile
 from ..gcode.features import parse_feature_tolerance
-from ..vm.firmware import ACCELS
+from ..firmware import ACCELS
 from .options import AMAX, FEATURE_TOLERANCE_HELP, STRINGENCY, TOLERANCE, VMAX, speed_policy
 
 

@@ -14,7 +14,7 @@ from ..outputs import write_text
 from ..pipeline import METHODS, Options, check_run_outputs, optimize_file
 from ..profile import load_profile
 from ..plan.speed import SPEEDS
-from ..vm.firmware import ACCELS
+from ..firmware import ACCELS
 from .options import (ACCEL_HELP, AMAX, FEATURE_TOLERANCE_HELP, STRINGENCY, TOLERANCE, VMAX,
                       Progress, profile_files, speed_policy)
 

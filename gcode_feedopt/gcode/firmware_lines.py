@@ -7,13 +7,13 @@ where they differ from what the plan needs:
   stretches (Marlin ``M204 P T``, ``M205 X Y``; Klipper ``SET_VELOCITY_LIMIT ACCEL
   SQUARE_CORNER_VELOCITY``), and the settings in force again after each;
 - :class:`_ClampState`: the firmware's acceleration limits clamped to the plan's where the file
-  allows more (vm.firmware.AccelClamp; ``M201``, ``SET_VELOCITY_LIMIT ACCEL``), the file's own
+  allows more (firmware.AccelClamp; ``M201``, ``SET_VELOCITY_LIMIT ACCEL``), the file's own
   after the last move;
 - :class:`_PlanLimits`: the limits the plan is timed with, before the first re-timed move,
   where the printer is configured lower (profile ``firmware.configured_*``), and the
   configured ones after the last move.
 
-``--accel plan`` (vm.firmware.AccelOverride) writes the texts vm.firmware gives it; the
+``--accel plan`` (firmware.AccelOverride) writes the texts the firmware variant gives it; the
 comments it appends to them are here (``_OVERRIDE_WHY``, ``_RESTORE_WHY``).
 """
 
@@ -91,7 +91,7 @@ class _AccelState:
 
 
 class _ClampState:
-    """The firmware's acceleration limits clamped to the plan's (vm.firmware.AccelClamp): a
+    """The firmware's acceleration limits clamped to the plan's (firmware.AccelClamp): a
     line before any move where the limits in force are above the plan's, and the file's own
     values back after the last move. A file line setting them again ends ours (``epoch``)."""
 

@@ -156,7 +156,7 @@ def build_path(program: Program, *, e_feed_cap_mm_s=25.0, e_accel_mm_s2=5000.0,
     Args:
         program: the parsed file.
         e_feed_cap_mm_s: the firmware's maximum extruder speed, one for the file or (M,) one per
-            move (vm.firmware.MoveLimits.e_feed_mm_s); an E-only move runs at the lower of its F
+            move (firmware.MoveLimits.e_feed_mm_s); an E-only move runs at the lower of its F
             and this.
         e_accel_mm_s2: the acceleration of E-only moves, one or (M,) per move
             (MoveLimits.e_accel_mm_s2), used for their duration.

@@ -18,7 +18,7 @@ end: the firmware then runs the plan itself, one line per run, instead of a stai
 values at full acceleration (which runs ~2 % slower than planned, with the acceleration bursts
 the plan avoided).
 
-Under ``--accel plan`` (vm.firmware.accel_override) the plan runs at its own accelerations where
+Under ``--accel plan`` (firmware.accel_override) the plan runs at its own accelerations where
 the file sets lower ones: right after each such line of the file (after the homing that follows
 it, if any) one line sets the plan's again, and after the last move the file's own come back.
 
@@ -42,7 +42,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import __version__
-from ..vm.firmware import override_restore_texts
+from ..firmware import override_restore_texts
 from .firmware_lines import (_OVERRIDE_WHY, _RESTORE_WHY, _AccelState, _ClampState,
                              _PlanLimits)
 from .metadata import MetadataUpdater
@@ -75,7 +75,7 @@ class WriteResult:
     #: the lines that set the plan's limits on a printer configured lower (``_PlanLimits``)
     plan_limit_lines: tuple = ()
     #: lines re-setting the plan's acceleration after the file's lines that lower it, and
-    #: giving the file's own back after the last move (``--accel plan``, vm.firmware
+    #: giving the file's own back after the last move (``--accel plan``, firmware
     #: .AccelOverride)
     override_lines: int = 0
 
@@ -97,11 +97,11 @@ def write(program: Program, path: Path, schedule: Schedule, profile, *, mode: st
 
     ``cells`` (a slow-down plan's ``schedule.cells``, gcode.schedule.SlowdownCells: each
     cell's boundaries, segment, scale and the plan's limits in it) with ``settings``
-    (vm.firmware.accel_settings of the program): moves through slowed cells are cut at the
+    (firmware.Replay.accel_settings of the program): moves through slowed cells are cut at the
     cell runs and the firmware is told each run's acceleration (:class:`_AccelState`), in
     re-feedrated mode.
 
-    ``clamp`` (vm.firmware.accel_clamp of the program under the plan's axis limits, or None):
+    ``clamp`` (firmware.Replay.accel_clamp of the program under the plan's axis limits, or None):
     where the file lets the firmware accelerate harder than the plan (``--amax``, a profile's
     lower limits), a line setting the plan's limits (Marlin ``M201 X Y Z``, Klipper
     ``SET_VELOCITY_LIMIT ACCEL``) goes before the first move concerned and again after any
@@ -111,7 +111,7 @@ def write(program: Program, path: Path, schedule: Schedule, profile, *, mode: st
     plan follows the firmware's own trapezoid, one line with F = the plan's peak speed
     reproduces it, so no extra lines are written.
 
-    ``override`` (vm.firmware.accel_override, ``--accel plan``): right after each line of the
+    ``override`` (firmware.accel_override, ``--accel plan``): right after each line of the
     file that sets an acceleration below the plan's (or after the homing that follows it), a
     line setting the plan's value again (Marlin ``M204 P.. T..`` / ``M201 X.. Y..``, Klipper
     ``SET_VELOCITY_LIMIT ACCEL=..``, with a ``; gcode-feedopt:`` comment); after the last move

@@ -8,6 +8,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from gcode_feedopt import firmware
 from gcode_feedopt.gcode.path import build_path
 from gcode_feedopt.gcode.reader import read_program
 from gcode_feedopt.gcode.schedule import Schedule, SlowdownCells
@@ -18,7 +19,7 @@ from gcode_feedopt.optimize.slowdown import _cell_peaks
 from gcode_feedopt.optimize.slowdown.grid import PlanGrid
 from gcode_feedopt.plan.kinematic import effective_limits, planner_limits, writer_accel
 from gcode_feedopt.profile import load_profile
-from gcode_feedopt.vm import firmware
+from gcode_feedopt.vm.firmware import estimate_time_s
 
 # the printer runs the profile's limits as its configuration (no configured_* lines to set
 # and restore them around the file: tests/gcode/test_writer_configured.py)
@@ -103,8 +104,8 @@ def wavy(c, n):
 def test_firmware_runs_a_slowed_plan_as_planned(profile, jerk):
     prog, sched, told, plain, (out_told, out_plain) = write_both(spiral(jerk), profile, wavy)
     t_plan = sched.duration_s
-    t_told = firmware.estimate_time_s(out_told, profile)
-    t_plain = firmware.estimate_time_s(out_plain, profile)
+    t_told = estimate_time_s(out_told, profile)
+    t_plain = estimate_time_s(out_plain, profile)
     # told the cell accelerations, the firmware's plan is ours (to the writer's 5 % speed band
     # and Ts sampling); a staircase of F values at full acceleration runs measurably slower
     assert t_told == pytest.approx(t_plan, rel=0.002)
@@ -148,8 +149,8 @@ def test_settings_restored_before_every_untouched_line_and_at_the_end(profile, j
                 # only the restore may precede it: the settings in force are the file's
                 assert lines[k - 1].startswith((b"M204", b"M205", b"SET_VELOCITY_LIMIT"))
     # the last slowed cell ends the part: the file ends with the settings it started with
-    snaps_in, _ = firmware._limit_snapshots(prog, profile, klipper)
-    snaps_out, _ = firmware._limit_snapshots(out, profile, klipper)
+    snaps_in = firmware.Replay(prog, profile).snaps
+    snaps_out = firmware.Replay(out, profile).snaps
     a, b = snaps_in[-1], snaps_out[-1]
     assert (a.accel_print, a.accel_travel, a.scv, a.jerk) == (b.accel_print, b.accel_travel,
                                                                b.scv, b.jerk)

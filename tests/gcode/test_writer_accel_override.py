@@ -14,12 +14,14 @@ import hashlib
 
 import pytest
 
+from gcode_feedopt import firmware
 from gcode_feedopt.gcode.reader import read_program
 from gcode_feedopt.pipeline import Options, optimize_file
 from gcode_feedopt.profile import load_profile
-from gcode_feedopt.vm import firmware
+from gcode_feedopt.vm.firmware import estimate_time_s
 
 from ..conftest import GCODE_DIR
+from ..firmware import reference
 
 pytestmark = pytest.mark.shared_data
 
@@ -79,7 +81,7 @@ def check_common(rep, src: bytes, data: bytes, profile):
     # the file's own accelerations overridden count under ``limits``
     assert sp["limits"] == pytest.approx(rep.extra["input_time_plan_accel_s"] - rep.input_time_s)
     out = read_program(data, "out")
-    t_out = firmware.estimate_time_s(out, firmware.as_configured(profile))
+    t_out = estimate_time_s(out, firmware.as_configured(profile))
     assert t_out == pytest.approx(rep.output_time_s, rel=1e-9)
     return out
 
@@ -127,7 +129,7 @@ def test_prusaslicer_mini_benchy(tmp_path):
     assert set(lim.e_accel_mm_s2[moving].tolist()) == {1250.0}
     assert set(lim.jerk_mm_s[moving, 0].tolist()) == {8.0}
     # after the file the printer is as its owner configured it (ender3pro: 500)
-    snaps, _ = firmware._limit_snapshots(out, profile, False)
+    snaps = firmware.Replay(out, profile).snaps
     assert (snaps[-1].accel_print, snaps[-1].max_accel["x"]) == (500.0, 500.0)
 
 
@@ -171,7 +173,8 @@ def test_klipper_set_velocity_limit(tmp_path):
     lim = firmware.move_limits(out, firmware.as_configured(profile))
     moving = slice(next(i for i, mv in enumerate(out.moves) if mv.line_no > k + 1), -1)
     assert set(lim.accel_mm_s2[moving].tolist()) == {5000.0}
-    snaps, si = firmware._limit_snapshots(out, profile, True)
+    replay = firmware.Replay(out, profile)
+    snaps, si = replay.snaps, replay.si
     assert snaps[si[-1]].scv == 1.0
 
 
@@ -192,11 +195,11 @@ def test_the_reference_replay_agrees():
     prog = read_program(head("prusaslicer-2.6.1_mini_3dbenchy"), "mini")
     ov = firmware.accel_override(prog, profile)
     a = firmware.move_limits(prog, profile, override=ov)
-    b = firmware.move_limits(prog, profile, fast=False, override=ov)
+    b = reference.move_limits(prog, profile, override=ov)
     for f in ("accel_mm_s2", "max_accel_mm_s2", "e_accel_mm_s2", "jerk_mm_s"):
         assert (getattr(a, f) == getattr(b, f))[~__import__("numpy").isnan(getattr(a, f))].all()
-    assert (firmware.estimate_time_s(prog, profile, override=ov)
-            == firmware.estimate_time_s(prog, profile, fast=False, override=ov))
+    assert (estimate_time_s(prog, profile, override=ov)
+            == reference.estimate_time_s(prog, profile, override=ov))
     assert firmware.accel_override(prog, profile, "file") is None
 
 

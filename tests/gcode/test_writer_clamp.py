@@ -8,10 +8,10 @@ import dataclasses
 import numpy as np
 import pytest
 
+from gcode_feedopt import firmware
 from gcode_feedopt.gcode.reader import read_program
 from gcode_feedopt.pipeline import Options, optimize_file
 from gcode_feedopt.profile import load_profile
-from gcode_feedopt.vm import firmware
 
 # the printer runs the profile's limits as its configuration (no configured_* lines to set
 # and restore them around the file: tests/gcode/test_writer_configured.py)
@@ -66,7 +66,7 @@ def test_amax_below_the_firmware_is_told_to_the_firmware(tmp_path):
     assert lines[0][0] < first_move and lines[1][0] == last_move + 1
     # the firmware's settings at the end are the file's (profile's) own
     out = read_program(data, "o")
-    snaps, _ = firmware._limit_snapshots(out, MARLIN, False)
+    snaps = firmware.Replay(out, MARLIN).snaps
     assert snaps[-1].max_accel == MARLIN.firmware.max_accel_mm_s2
 
 

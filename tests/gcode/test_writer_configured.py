@@ -11,10 +11,11 @@ import pathlib
 
 import pytest
 
+from gcode_feedopt import firmware
 from gcode_feedopt.gcode.reader import read_program
 from gcode_feedopt.pipeline import Options, optimize_file
 from gcode_feedopt.profile import load_profile
-from gcode_feedopt.vm import firmware
+from gcode_feedopt.vm.firmware import estimate_time_s
 
 REPO = pathlib.Path(__file__).resolve().parents[2]
 BUTTERFLY = REPO / "sample_gcode" / "butterfly.gcode"
@@ -55,19 +56,19 @@ def test_stock_printer_runs_the_plan(tmp_path):
     assert lines[1][0] < moves[0] and lines[2][0] == moves[-1] + 1
     # a firmware starting from its configuration runs the written file as planned ...
     out = read_program(data, "out")
-    t_stock = firmware.estimate_time_s(out, stock(SHIPPED))
+    t_stock = estimate_time_s(out, stock(SHIPPED))
     assert t_stock == pytest.approx(rep.plan_time_s, rel=2e-3)
     # ... and without our lines it would not (the plan needs 3000 mm/s²)
     bare = b"".join(ln + b"\n" for ln in text if b"; gcode-feedopt:" not in ln)
-    assert firmware.estimate_time_s(read_program(bare, "bare"), stock(SHIPPED)) > 1.2 * t_stock
+    assert estimate_time_s(read_program(bare, "bare"), stock(SHIPPED)) > 1.2 * t_stock
     assert any("sets M201 X3000 Y3000 and M204 P3000 R3000 T3000" in n for n in rep.notes)
     # the summary times both files as the printer is configured
     assert rep.output_time_s == pytest.approx(t_stock, rel=1e-9)
     assert rep.input_time_s == pytest.approx(
-        firmware.estimate_time_s(read_program(CURA, "in"), stock(SHIPPED)))
+        estimate_time_s(read_program(CURA, "in"), stock(SHIPPED)))
     assert rep.extra["input_time_profile_limits_s"] < rep.input_time_s
     # after the file the printer is as its owner configured it
-    snaps, _ = firmware._limit_snapshots(out, SHIPPED, False)
+    snaps = firmware.Replay(out, SHIPPED).snaps
     assert snaps[-1].accel_print == snaps[-1].accel_travel == 500.0
     assert (snaps[-1].max_accel["x"], snaps[-1].max_accel["y"]) == (500.0, 500.0)
 
@@ -80,12 +81,12 @@ def test_lines_carry_what_the_file_set_before_its_first_move(tmp_path):
     rep, data = run(tmp_path, src, SHIPPED, accel="file")
     assert [ln.split(b" ;")[0] for _, ln in ours(data)][:2] == [b"M201 X3000 Y3000",
                                                                  b"M204 P1500 R3000 T2500"]
-    t_stock = firmware.estimate_time_s(read_program(data, "out"), stock(SHIPPED))
+    t_stock = estimate_time_s(read_program(data, "out"), stock(SHIPPED))
     assert t_stock == pytest.approx(rep.output_time_s, rel=2e-3)
     rep, data = run(tmp_path, src, SHIPPED)
     assert [ln.split(b" ;")[0] for _, ln in ours(data)][:3] == [
         b"M204 P3000 T3000", b"M201 X3000 Y3000", b"M204 P3000 R3000 T3000"]
-    t_stock = firmware.estimate_time_s(read_program(data, "out"), stock(SHIPPED))
+    t_stock = estimate_time_s(read_program(data, "out"), stock(SHIPPED))
     assert t_stock == pytest.approx(rep.output_time_s, rel=2e-3)
 
 

@@ -10,6 +10,7 @@ import time
 import numpy as np
 import pytest
 
+from gcode_feedopt import firmware
 from gcode_feedopt.gcode.path import build_path
 from gcode_feedopt.gcode.reader import read_program
 from gcode_feedopt.gcode.schedule import Schedule
@@ -19,7 +20,6 @@ from gcode_feedopt.gcode.pieces import (_firmware_band, _pieces, _split_pieces, 
 from gcode_feedopt.gcode.writer import write
 from gcode_feedopt.plan.kinematic import plan_kinematic, writer_accel
 from gcode_feedopt.profile import load_profile
-from gcode_feedopt.vm import firmware
 
 from ..conftest import GCODE_DIR, REPO
 

@@ -8,6 +8,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from gcode_feedopt import firmware
 from gcode_feedopt.gcode.path import build_path
 from gcode_feedopt.gcode.reader import read_program
 from gcode_feedopt.gcode.verify import verify
@@ -15,7 +16,7 @@ from gcode_feedopt.gcode.writer import write
 from gcode_feedopt.pipeline import path_for
 from gcode_feedopt.plan.kinematic import plan_kinematic, writer_accel
 from gcode_feedopt.profile import load_profile
-from gcode_feedopt.vm import firmware
+from gcode_feedopt.vm.firmware import estimate_time_s
 
 MARLIN = load_profile("ender3pro")
 KLIPPER = dataclasses.replace(MARLIN, firmware=dataclasses.replace(
@@ -49,7 +50,7 @@ def written_time(data: bytes, profile, keep_peaks: bool):
         sched = dataclasses.replace(sched, segment_plan=None)
     res = write(prog, path, sched, profile, accel_mm_s2=writer_accel(path, profile, limits))
     out = verify(prog, res, flavour=fw.flavour, g91_relative_e=fw.g91_relative_e)
-    return sched.duration_s, firmware.estimate_time_s(out, profile), res, path
+    return sched.duration_s, estimate_time_s(out, profile), res, path
 
 
 @pytest.mark.parametrize("profile", [MARLIN, KLIPPER], ids=["marlin-jd", "klipper"])
@@ -86,8 +87,8 @@ def test_e_only_moves_last_what_the_firmware_gives_them():
     prog = read_program(("\n".join(lines) + "\n").encode(), "r.gcode", flavour=fw.flavour,
                         g91_relative_e=fw.g91_relative_e)
     path = path_for(prog, MARLIN)
-    blocks = firmware.build_blocks(prog, MARLIN)
-    tr = firmware._plan(blocks)
+    blocks = firmware.build_blocks(firmware.Replay(prog, MARLIN))
+    tr = blocks.plan()
     e_only = np.all(blocks.end_mm == blocks.start_mm, axis=1)
     assert e_only.sum() == 12
     assert path.dwell_after_s.sum() + path.dwell_before_s == pytest.approx(

@@ -191,7 +191,7 @@ def test_twin_plan_is_the_kinematic_plan_where_the_tolerance_is_slack(ender, opt
     µm; only a dwell may round to one sample differently (the plan holds whole samples)."""
     from gcode_feedopt import pipeline
     from gcode_feedopt.plan.kinematic import plan_kinematic
-    from gcode_feedopt.vm import firmware
+    from gcode_feedopt import firmware
 
     src = REPO.parent / "shared" / "data" / "gcode" / "cura-4.11_ender3_3dbenchy.gcode"
     lines = src.read_bytes().splitlines(keepends=True)[:500]
@@ -232,7 +232,7 @@ def test_screened_plan_equals_the_full_method(ender):
     position within 1 mm/s over at least 90 % of the path (the rest: the sequential LP
     reaching a different local plan where the chance constraint binds)."""
     from gcode_feedopt import pipeline
-    from gcode_feedopt.vm import firmware
+    from gcode_feedopt import firmware
 
     src = REPO.parent / "shared" / "data" / "gcode" / "cura-4.11_ender3_3dbenchy.gcode"
     lines = src.read_bytes().splitlines(keepends=True)[:700]
@@ -314,7 +314,7 @@ def test_parallel_chunks_give_the_sequential_plan(ender, monkeypatch):
     twin's memory) give the plan of one sequential pass."""
     from gcode_feedopt import pipeline
     from gcode_feedopt.optimize import parallel
-    from gcode_feedopt.vm import firmware
+    from gcode_feedopt import firmware
 
     monkeypatch.setattr(parallel, "MIN_PARALLEL_SAMPLES", 0)
     src = REPO.parent / "shared" / "data" / "gcode" / "cura-4.11_ender3_3dbenchy.gcode"

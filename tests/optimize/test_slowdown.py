@@ -12,7 +12,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 from scipy.stats import norm
 
-from gcode_feedopt import pipeline
+from gcode_feedopt import firmware, pipeline
 from gcode_feedopt.optimize.free import ContourRules, evaluate
 from gcode_feedopt.optimize.methods import make_twin_predictor, plan_schedule
 from gcode_feedopt.optimize.slowdown import SlowdownSettings, plan_slowdown
@@ -20,7 +20,6 @@ from gcode_feedopt.optimize.slowdown.evaluators import PlantEvaluator, TwinEvalu
 from gcode_feedopt.optimize.slowdown.grid import PlanGrid
 from gcode_feedopt.plan.kinematic import effective_limits, plan_kinematic, planner_limits
 from gcode_feedopt.profile import load_profile
-from gcode_feedopt.vm import firmware
 
 from ..conftest import GCODE_DIR, REPO
 

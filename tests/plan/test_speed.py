@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
+from gcode_feedopt import firmware
 from gcode_feedopt.cli import cli
 from gcode_feedopt.gcode.path import build_path
 from gcode_feedopt.gcode.reader import read_program
@@ -17,7 +18,6 @@ from gcode_feedopt.plan.request import PlanRequest
 from gcode_feedopt.plan.kinematic import writer_accel
 from gcode_feedopt.plan.speed import feed_ceiling, plan_vmax, planning_path
 from gcode_feedopt.profile import load_profile
-from gcode_feedopt.vm import firmware
 
 REPO = pathlib.Path(__file__).resolve().parents[2]
 REAL = REPO.parent / "shared" / "data" / "gcode"

@@ -8,7 +8,8 @@ import pytest
 
 from gcode_feedopt.gcode.reader import read_program
 from gcode_feedopt.profile import load_profile
-from gcode_feedopt.vm.firmware import build_blocks, estimate_time_s, execute
+from gcode_feedopt.firmware import Replay, build_blocks
+from gcode_feedopt.vm.firmware import estimate_time_s, execute
 
 MARLIN = load_profile("ender3pro")  # accel 3000, JD 0.013, max feed x/y 500
 KLIPPER = dataclasses.replace(MARLIN, firmware=dataclasses.replace(
@@ -38,7 +39,7 @@ def test_m203_caps_feed_and_m201_caps_accel():
 
 def test_junction_deviation_90_degrees():
     p = prog("G1 X0 Y0 F6000\nG1 X50 Y0\nG1 X50 Y50\n")
-    b = build_blocks(p, MARLIN)
+    b = build_blocks(Replay(p, MARLIN))
     sd = math.sin(math.pi / 4)
     vj = math.sqrt(3000 * 0.013 * sd / (1 - sd))
     # two blocks, 50 mm each, rest -> 100 mm/s -> vj -> 100 -> rest
@@ -50,7 +51,7 @@ def test_junction_deviation_90_degrees():
 
 def test_classic_jerk_from_the_file():
     p = prog("M205 X8 Y8\nG1 X0 Y0 F6000\nG1 X50 Y0\nG1 X50 Y50\n")
-    b = build_blocks(p, MARLIN)
+    b = build_blocks(Replay(p, MARLIN))
     # 90° corner: each axis changes by v, so v = 8 mm/s
     assert b.jerk_v[0] == pytest.approx(8.0)
 
@@ -155,7 +156,7 @@ def test_klipper_extruder_corner_velocity():
     # straight on from extruding (dE/L = 0.05) into travel: the extruder's speed may jump by
     # instantaneous_corner_velocity (1 mm/s), so the junction runs at 1 / 0.05 = 20 mm/s
     p = prog("M83\nG1 X0 Y0 F6000\nG1 X50 E2.5\nG1 X100\n", "klipper")
-    b = build_blocks(p, K0)
+    b = build_blocks(Replay(p, K0))
     np.testing.assert_allclose(b.e_ratio, [0.05, 0.0])
     vj = 20.0
     half = ((50 - (100 ** 2 - vj ** 2) / 6000 - 100 ** 2 / 6000) / 100

@@ -1,7 +1,7 @@
 """The firmware model's fast paths (blocks and per-move limits as arrays, limits looked up
-from one snapshot per event) against the reference (move by move): the same arrays bit for
-bit, hence the same estimated time, on real files, on both flavours and on a file that
-exercises every event the model honours."""
+from one snapshot per event) against the reference (move by move, reference.py): the same
+arrays bit for bit, hence the same estimated time, on real files, on both flavours and on a
+file that exercises every event the model honours."""
 
 from __future__ import annotations
 
@@ -13,9 +13,11 @@ import pytest
 
 from gcode_feedopt.gcode.reader import read_program
 from gcode_feedopt.profile import load_profile
-from gcode_feedopt.vm.firmware import build_blocks, estimate_time_s, move_limits
+from gcode_feedopt.firmware import Replay, build_blocks, move_limits
+from gcode_feedopt.vm.firmware import estimate_time_s
 
 from ..conftest import GCODE_DIR, REPO
+from . import reference
 
 MARLIN = load_profile("ender3pro")
 KLIPPER = dataclasses.replace(MARLIN, firmware=dataclasses.replace(
@@ -94,9 +96,9 @@ def _check(data: bytes, profile):
     fw = profile.firmware
     prog = read_program(data, "t.gcode", flavour=fw.flavour, g91_relative_e=fw.g91_relative_e,
                         retract_mm=fw.retract_mm, retract_speed_mm_s=fw.retract_speed_mm_s)
-    _same_blocks(build_blocks(prog, profile, fast=True), build_blocks(prog, profile, fast=False))
-    assert estimate_time_s(prog, profile, fast=True) == estimate_time_s(prog, profile, fast=False)
-    a, b = move_limits(prog, profile, fast=True), move_limits(prog, profile, fast=False)
+    _same_blocks(build_blocks(Replay(prog, profile)), reference.build_blocks(prog, profile))
+    assert estimate_time_s(prog, profile) == reference.estimate_time_s(prog, profile)
+    a, b = move_limits(prog, profile), reference.move_limits(prog, profile)
     for f in dataclasses.fields(a):
         assert np.array_equal(getattr(a, f.name), getattr(b, f.name), equal_nan=True), f.name
     return prog
@@ -107,7 +109,7 @@ def test_every_event(flavour):
     profile = PROFILES[flavour]
     prog = _check(EVENTS, profile)
     assert any(m.arc is not None for m in prog.moves)
-    blocks = build_blocks(prog, profile)
+    blocks = build_blocks(Replay(prog, profile))
     assert blocks.lead_s > 0 and np.any(blocks.dwell_after_s > 0)
     assert np.any(blocks.stop_after[:-1]) and np.any(blocks.accel != blocks.accel[0])
     if flavour == "marlin":
@@ -144,12 +146,13 @@ def test_fast_blocks_are_faster():
     data = b"".join(path.read_bytes().splitlines(keepends=True)[:20000])
     prog = read_program(data, "t.gcode")
 
-    def best(fast):
+    def best(build):
         t = []
         for _ in range(2):
             t0 = time.perf_counter()
-            build_blocks(prog, MARLIN, fast=fast)
+            build()
             t.append(time.perf_counter() - t0)
         return min(t)
 
-    assert best(True) < 0.5 * best(False)
+    assert (best(lambda: build_blocks(Replay(prog, MARLIN)))
+            < 0.5 * best(lambda: reference.build_blocks(prog, MARLIN)))

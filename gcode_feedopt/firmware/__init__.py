@@ -1,0 +1,51 @@
+"""Printer firmwares: each one's rules behind one small interface, and the per-file replay of
+the settings a file sets.
+
+The printer's firmware re-plans every move with its own limits, so the commanded trajectory is
+the firmware's; a plan the firmware would run slower is not the plan. One variant per file,
+chosen by the profile's ``firmware.flavour`` (:func:`firmware_for`):
+
+- base.py: the interface (:class:`Firmware`: how a line changes the limits, per-move caps,
+  junction rule and look-ahead, the text of the commands that set and restore limits) and
+  the :class:`Limits` in force;
+- marlin.py: Marlin 2; klipper.py: Klipper (docs/firmware.md);
+- replay.py: the file's settings replayed once (:class:`Replay`) and what the planner
+  (:class:`MoveLimits`) and the writer (:class:`AccelSettings`, :class:`AccelClamp`) read;
+- override.py: ``--accel plan`` (:class:`AccelOverride`) and the configured printer;
+- blocks.py: the firmware's planner blocks (vm.firmware times and samples them).
+"""
+
+from __future__ import annotations
+
+from .base import Firmware, Limits
+from .klipper import Klipper
+from .marlin import Marlin
+
+_VARIANTS = {v.flavour: v() for v in (Marlin, Klipper)}
+
+
+def by_flavour(flavour: str) -> Firmware:
+    """The variant of a profile's ``firmware.flavour`` (``marlin``, ``klipper``)."""
+    try:
+        return _VARIANTS[flavour]
+    except KeyError:
+        raise ValueError(f"unknown firmware flavour {flavour!r}; use one of "
+                         f"{', '.join(_VARIANTS)}") from None
+
+
+def firmware_for(profile) -> Firmware:
+    """The variant whose rules the profile's printer runs (``profile.firmware.flavour``)."""
+    return by_flavour(profile.firmware.flavour)
+
+
+from .blocks import Blocks, build_blocks  # noqa: E402
+from .override import (ACCELS, AccelOverride, accel_override, as_configured,  # noqa: E402
+                       override_restore_texts, plan_accels, raises_configured)
+from .replay import (AccelClamp, AccelSettings, MoveLimits, Replay, accel_clamp,  # noqa: E402
+                     accel_settings, move_limits)
+
+__all__ = ["ACCELS", "AccelClamp", "AccelOverride", "AccelSettings", "Blocks", "Firmware",
+           "Klipper", "Limits", "Marlin", "MoveLimits", "Replay", "accel_clamp",
+           "accel_override", "accel_settings", "as_configured", "build_blocks", "by_flavour",
+           "firmware_for", "move_limits", "override_restore_texts", "plan_accels",
+           "raises_configured"]
