@@ -22,6 +22,8 @@ from .klipper import Klipper
 from .marlin import Marlin
 
 _VARIANTS = {v.flavour: v() for v in (Marlin, Klipper)}
+#: every command a variant's added lines may start with (gcode.verify)
+LIMIT_COMMANDS = tuple(c for v in _VARIANTS.values() for c in v.limit_commands)
 
 
 def by_flavour(flavour: str) -> Firmware:
@@ -45,7 +47,7 @@ from .replay import (AccelClamp, AccelSettings, MoveLimits, Replay, accel_clamp,
                      accel_settings, move_limits)
 
 __all__ = ["ACCELS", "AccelClamp", "AccelOverride", "AccelSettings", "Blocks", "Firmware",
-           "Klipper", "Limits", "Marlin", "MoveLimits", "Replay", "accel_clamp",
+           "Klipper", "LIMIT_COMMANDS", "Limits", "Marlin", "MoveLimits", "Replay", "accel_clamp",
            "accel_override", "accel_settings", "as_configured", "build_blocks", "by_flavour",
            "firmware_for", "move_limits", "override_restore_texts", "plan_accels",
            "raises_configured"]

@@ -111,6 +111,11 @@ class Firmware(ABC):
     #: the file (M201) and the configuration (``firmware.configured_max_accel_mm_s2``) can set
     #: per-axis acceleration maxima
     axis_max_accel: bool = True
+    #: the lines restoring a slowed stretch's settings also set the limit the clamp
+    #: (firmware.AccelClamp) holds (Klipper's one ACCEL)
+    restore_sets_clamp: bool = False
+    #: the commands the writer's added lines may start with (gcode.verify checks them)
+    limit_commands: tuple = ()
 
     # -- the settings replay --------------------------------------------------------------
     @abstractmethod

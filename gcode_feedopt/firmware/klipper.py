@@ -5,7 +5,7 @@ change nothing), SET_VELOCITY_LIMIT (VELOCITY, ACCEL, SQUARE_CORNER_VELOCITY,
 MINIMUM_CRUISE_RATIO), M220 / M221; Z and extrude-only limits scaled by the move; junctions at
 each neighbour's own δ·a (δ = scv²(√2 − 1)/accel) and ½·L·a·tan(θ/2), and the extruder's
 instantaneous_corner_velocity; minimum_cruise_ratio's pseudo-accel look-ahead gives a run of
-short moves one reduced peak (plan.trapezoid.klipper_lookahead). Real Klipper times the same
+short moves one reduced peak (:func:`klipper_lookahead`). Real Klipper times the same
 files to within 1 µs (tests/vm/test_klipper_referee.py).
 """
 
@@ -17,7 +17,7 @@ import numpy as np
 
 from ..gcode.motion_lines import _fmt
 from ..gcode.path import SEG_LINE
-from ..plan.trapezoid import klipper_junction_v2, klipper_lookahead
+from ..plan.trapezoid import Trapezoids, trapezoids_from_speeds
 from .base import (SCV_JD, Firmware, Limits, fmt_setting, plan_xy_accels, positive,
                    segment_caps)
 
@@ -35,6 +35,118 @@ def accel_set(ev) -> float | None:
     if ev.name == "SET_VELOCITY_LIMIT":
         return positive(p, "ACCEL")
     return None
+
+
+def klipper_junction_v2(turn_cos: np.ndarray, accel_mm_s2: np.ndarray,
+                        deviation_mm: np.ndarray, length_mm: np.ndarray, vcap_mm_s: np.ndarray,
+                        stop_after: np.ndarray, e_ratio: np.ndarray | None = None,
+                        icv_mm_s: float = 1.0) -> np.ndarray:
+    """(N-1,) squared speed limit at each inner junction under Klipper's rules, (mm/s)².
+
+    Klipper (toolhead.Move.calc_junction) takes the smallest of: both neighbours' speed caps;
+    the extruder's ``(icv / |Δ(dE/L)|)²`` where the share of E changes (``e_ratio``,
+    instantaneous_corner_velocity ``icv_mm_s``); and, unless the path goes straight on, the
+    junction deviation v² = R·δ·a and the centripetal rule v² = ½·L·a·tan(θ/2) of each
+    neighbour with its own δ, a and L, R = sin(θ/2)/(1 − sin(θ/2)) (θ between the reversed
+    incoming and the outgoing direction). Unlike plan.trapezoid.junction_speeds no turn
+    counts as straight or as a reversal by a threshold: the formulas decide. Exact stops give 0.
+    """
+    a = accel_mm_s2
+    cap2 = vcap_mm_s * vcap_mm_s
+    v2 = np.minimum(cap2[:-1], cap2[1:])
+    if e_ratio is not None:
+        dr = np.abs(e_ratio[1:] - e_ratio[:-1])
+        with np.errstate(divide="ignore"):
+            v2 = np.where(dr != 0.0, np.minimum(v2, np.square(icv_mm_s / dr)), v2)
+    jct = -np.asarray(turn_cos, float)
+    sin_d2 = np.sqrt(np.maximum(0.5 * (1.0 - jct), 0.0))
+    cos_d2 = np.sqrt(np.maximum(0.5 * (1.0 + jct), 0.0))
+    oms = 1.0 - sin_d2
+    turn = (oms > 0.0) & (cos_d2 > 0.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r_jd = sin_d2 / oms
+        qtan = 0.25 * sin_d2 / cos_d2
+        lim = np.minimum(np.minimum(r_jd * deviation_mm[1:] * a[1:],
+                                    r_jd * deviation_mm[:-1] * a[:-1]),
+                         np.minimum(2.0 * length_mm[1:] * a[1:] * qtan,
+                                    2.0 * length_mm[:-1] * a[:-1] * qtan))
+    v2 = np.where(turn, np.minimum(v2, lim), v2)
+    return np.where(stop_after[:-1], 0.0, v2)
+
+
+def klipper_lookahead(junction_v2: np.ndarray, length_mm: np.ndarray, accel_mm_s2: np.ndarray,
+                      pseudo_accel_mm_s2: np.ndarray, vcap_mm_s: np.ndarray,
+                      dwell_s: np.ndarray, lead_s: float = 0.0) -> Trapezoids:
+    """Klipper's look-ahead (toolhead.LookAheadQueue.flush) over a whole chain, as trapezoids.
+
+    ``junction_v2`` (N+1,) the squared junction limits (:func:`klipper_junction_v2`; 0 at both
+    ends and at stops). Two speed profiles are planned: the real one at each block's accel and
+    minimum_cruise_ratio's at its pseudo-accel (never above the accel). Forward, each start
+    is what the previous block can reach; backward, what the next one can brake from. A block
+    that accelerates in the pseudo profile cruises at most at the pseudo profile's peak of the
+    stretch of accelerating blocks it belongs to (the peak of the block where that profile
+    turns from accelerating to braking) — so a run of short moves shares one reduced peak
+    instead of each reaching its own; a block that only brakes in the pseudo profile cruises
+    no faster than the block before it. Each block then runs start → cruise → end at its
+    accel, its ends cut to its cruise. A stop resets both profiles, as a flush of Klipper's
+    queue does, so one pass over the whole chain is the same as Klipper's flushes.
+    """
+    n = int(length_mm.size)
+    L = length_mm
+    delta = (2.0 * accel_mm_s2 * L).tolist()
+    mdelta = (2.0 * np.minimum(pseudo_accel_mm_s2, accel_mm_s2) * L).tolist()
+    cap2 = np.square(vcap_mm_s).tolist()
+    lim = junction_v2.tolist()
+    # forward: the highest start of each block, real and pseudo
+    ms = [0.0] * n
+    mm = [0.0] * n
+    for i in range(1, n):
+        v = lim[i]
+        r = ms[i - 1] + delta[i - 1]
+        s = v if v < r else r
+        ms[i] = s
+        r = mm[i - 1] + mdelta[i - 1]
+        mm[i] = s if s < r else r
+    # backward: starts and cruise speeds
+    start = [0.0] * n
+    nxt = [0.0] * n
+    cruise = [-1.0] * n
+    next_s = next_m = peak = 0.0
+    pending = 0
+    for i in range(n - 1, -1, -1):
+        reach = next_s + delta[i]
+        s = ms[i] if ms[i] < reach else reach
+        pending += 1
+        reach_m = next_m + mdelta[i]
+        m = mm[i] if mm[i] < reach_m else reach_m
+        if m < reach_m:
+            if m + mdelta[i] > next_m or pending > 1:
+                peak = (m + reach_m) * 0.5
+            c = (s + reach) * 0.5
+            if cap2[i] < c:
+                c = cap2[i]
+            if peak < c:
+                c = peak
+            cruise[i] = c
+            pending = 0
+        start[i] = s
+        nxt[i] = next_s
+        next_s = s
+        next_m = m
+    # forward: a block that only brakes cruises no faster than the one before
+    v0 = [0.0] * n
+    v1 = [0.0] * n
+    prev = 0.0
+    for i in range(n):
+        c = cruise[i]
+        if c < 0.0:
+            c = prev if prev < start[i] else start[i]
+            cruise[i] = c
+        v0[i] = start[i] if start[i] < c else c
+        v1[i] = nxt[i] if nxt[i] < c else c
+        prev = c
+    return trapezoids_from_speeds(np.sqrt(np.asarray(v0)), np.sqrt(np.asarray(cruise)),
+                                  np.sqrt(np.asarray(v1)), L, accel_mm_s2, dwell_s, lead_s)
 
 
 def move_caps(lim: Limits, d, L: float, de: float, feed: float):
@@ -68,6 +180,8 @@ class Klipper(Firmware):
     flavour = "klipper"
     #: M201 is not a Klipper command; max_accel is the one accel
     axis_max_accel = False
+    restore_sets_clamp = True
+    limit_commands = ("SET_VELOCITY_LIMIT",)
 
     # -- the settings replay --------------------------------------------------------------
     def apply_event(self, lim: Limits, ev) -> None:
@@ -111,8 +225,8 @@ class Klipper(Firmware):
 
     def override_texts(self, fields: dict) -> list[str]:
         """``SET_VELOCITY_LIMIT ACCEL=..``."""
-        g = fmt_setting
-        return [f"SET_VELOCITY_LIMIT ACCEL={g(fields.get('accel_print', fields.get('accel_travel')))}"]
+        a = fields.get("accel_print", fields.get("accel_travel"))
+        return [f"SET_VELOCITY_LIMIT ACCEL={fmt_setting(a)}"]
 
     def describe_accels(self, ov) -> str:
         return f"ACCEL {ov.accel_print_mm_s2:g} mm/s²"
@@ -227,7 +341,7 @@ class Klipper(Firmware):
         without moving X/Y, stays within the extrude-only limits scaled by L/|dE|; where the
         extruder's share dE/L changes, the junction stays within
         instantaneous_corner_velocity / |Δ(dE/L)|; minimum_cruise_ratio gives the plan its
-        pseudo-accel (plan.trapezoid.klipper_lookahead)."""
+        pseudo-accel (:func:`klipper_lookahead`)."""
         n = path.n_segments
         L = path.length_mm
         a_xy = min(axis_amax_mm_s2["x"], axis_amax_mm_s2["y"])
@@ -269,7 +383,7 @@ class Klipper(Firmware):
 
     def lookahead(self, junction_mm_s, length_mm, accel_mm_s2, pseudo_accel_mm_s2, vcap_mm_s,
                   dwell_after_s, lead_s):
-        """minimum_cruise_ratio's pseudo-accel look-ahead (plan.trapezoid.klipper_lookahead)."""
+        """minimum_cruise_ratio's pseudo-accel look-ahead (:func:`klipper_lookahead`)."""
         return klipper_lookahead(np.square(junction_mm_s), length_mm, accel_mm_s2,
                                  pseudo_accel_mm_s2, vcap_mm_s, dwell_after_s, lead_s)
 

@@ -22,6 +22,7 @@ from .base import Firmware, Limits, fmt_setting, plan_xy_accels, segment_caps
 class Marlin(Firmware):
     flavour = "marlin"
     axis_max_accel = True
+    limit_commands = ("M201", "M204", "M205")
 
     # -- the settings replay --------------------------------------------------------------
     def apply_event(self, lim: Limits, ev) -> None:

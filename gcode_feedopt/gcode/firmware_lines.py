@@ -1,7 +1,8 @@
 """The lines the writer adds to tell the firmware the plan's limits, and restore the file's.
 
 Each class follows, line by line, the settings its lines leave in force and writes a line only
-where they differ from what the plan needs:
+where they differ from what the plan needs; the text of the lines is the firmware variant's
+(firmware.Firmware: ``stretch_texts``, ``clamp_text``, ``plan_limits_texts``, ...):
 
 - :class:`_AccelState`: the acceleration and junction rule of a slow-down plan's slowed
   stretches (Marlin ``M204 P T``, ``M205 X Y``; Klipper ``SET_VELOCITY_LIMIT ACCEL
@@ -19,9 +20,7 @@ comments it appends to them are here (``_OVERRIDE_WHY``, ``_RESTORE_WHY``).
 
 from __future__ import annotations
 
-import numpy as np
-
-from .motion_lines import _fmt
+from ..firmware import by_flavour
 
 #: the comments on the lines of ``--accel plan``: after a file line lowering an acceleration,
 #: and after the last move
@@ -45,27 +44,16 @@ class _AccelState:
 
     def __init__(self, settings):
         self.st = settings
-        self.klipper = settings.flavour == "klipper"
+        self.fw = by_flavour(settings.flavour)
+        self.restores_clamp = self.fw.restore_sets_clamp
         self.active = None  # (accel, r) in force from our lines, or None
         self.lines = 0
-
-    def _jerk(self, mi):
-        j = self.st.jerk_xy_mm_s[mi]
-        return None if np.isnan(j[0]) else j
 
     def set(self, key, mi: int, ending: bytes) -> list[bytes]:
         if key == self.active:
             return []
         acc, r = key
-        a = _fmt(acc, 0)
-        if self.klipper:
-            out = [f"SET_VELOCITY_LIMIT ACCEL={a} SQUARE_CORNER_VELOCITY="
-                   f"{_fmt(float(self.st.scv_mm_s[mi]) * r, 3)}".encode() + ending]
-        else:
-            out = [f"M204 P{a} T{a}".encode() + ending]
-            j = self._jerk(mi)
-            if j is not None:
-                out.append(f"M205 X{_fmt(j[0] * r, 3)} Y{_fmt(j[1] * r, 3)}".encode() + ending)
+        out = [t.encode() + ending for t in self.fw.stretch_texts(acc, r, self.st, mi)]
         self.active = key
         self._mi = mi
         self.lines += len(out)
@@ -74,17 +62,7 @@ class _AccelState:
     def restore(self, ending: bytes) -> list[bytes]:
         if self.active is None:
             return []
-        mi = self._mi
-        if self.klipper:
-            out = [f"SET_VELOCITY_LIMIT ACCEL={_fmt(float(self.st.accel_print_mm_s2[mi]), 3)} "
-                   f"SQUARE_CORNER_VELOCITY={_fmt(float(self.st.scv_mm_s[mi]), 3)}".encode()
-                   + ending]
-        else:
-            out = [f"M204 P{_fmt(float(self.st.accel_print_mm_s2[mi]), 3)} "
-                   f"T{_fmt(float(self.st.accel_travel_mm_s2[mi]), 3)}".encode() + ending]
-            j = self._jerk(mi)
-            if j is not None:
-                out.append(f"M205 X{_fmt(j[0], 3)} Y{_fmt(j[1], 3)}".encode() + ending)
+        out = [t.encode() + ending for t in self.fw.stretch_restore_texts(self.st, self._mi)]
         self.active = None
         self.lines += len(out)
         return out
@@ -96,7 +74,7 @@ class _ClampState:
     values back after the last move. A file line setting them again ends ours (``epoch``)."""
 
     def __init__(self, clamp):
-        self.klipper = clamp.flavour == "klipper"
+        self.fw = by_flavour(clamp.flavour)
         # per move, as Python tuples: compared once per motion line
         self.want = [tuple(r) for r in clamp.want_mm_s2.tolist()]
         self.file = [tuple(r) for r in clamp.file_mm_s2.tolist()]
@@ -105,10 +83,7 @@ class _ClampState:
         self.lines = 0
 
     def _line(self, vals, ending: bytes) -> bytes:
-        if self.klipper:
-            return f"SET_VELOCITY_LIMIT ACCEL={_fmt(vals[0], 3)}".encode() + ending
-        return ("M201 " + " ".join(f"{a}{_fmt(v, 3)}" for a, v in zip("XYZ", vals))).encode() \
-            + ending
+        return self.fw.clamp_text(vals).encode() + ending
 
     def _have(self, mi: int):
         if self.ours is not None and self.ours[0] == self.epoch[mi]:
@@ -147,7 +122,7 @@ class _PlanLimits:
 
     def __init__(self, fw, settings):
         self.fw, self.st = fw, settings
-        self.klipper = fw.flavour == "klipper"
+        self.variant = by_flavour(fw.flavour)
         self.done = False
         self.raised = {"max": False, "accel": False}
         self.lines = 0
@@ -156,24 +131,9 @@ class _PlanLimits:
         if self.done:
             return []
         self.done = True
-        st, fw, out = self.st, self.fw, []
-        conf_a, conf_m = fw.configured_accel_mm_s2, fw.configured_max_accel_mm_s2
-        p, t = float(st.accel_print_mm_s2[mi]), float(st.accel_travel_mm_s2[mi])
-        if self.klipper:
-            if conf_a is not None and p > conf_a:
-                out.append(f"SET_VELOCITY_LIMIT ACCEL={_fmt(p, 3)}".encode() + self._why(ending))
-                self.raised["accel"] = True
-        else:
-            if conf_m is not None and st.max_accel_xy_mm_s2 is not None:
-                mx, my = (float(v) for v in st.max_accel_xy_mm_s2[mi])
-                if mx > conf_m["x"] or my > conf_m["y"]:
-                    out.append(f"M201 X{_fmt(mx, 3)} Y{_fmt(my, 3)}".encode() + self._why(ending))
-                    self.raised["max"] = True
-            r = p if st.accel_retract_mm_s2 is None else float(st.accel_retract_mm_s2[mi])
-            if conf_a is not None and max(p, t, r) > conf_a:
-                out.append(f"M204 P{_fmt(p, 3)} R{_fmt(r, 3)} T{_fmt(t, 3)}".encode()
-                           + self._why(ending))
-                self.raised["accel"] = True
+        why = self._why(ending)
+        out = [t.encode() + why
+               for t in self.variant.plan_limits_texts(self.fw, self.st, mi, self.raised)]
         self.lines += len(out)
         self.set_lines = tuple(ln.split(b" ;")[0].decode() for ln in out)
         return out
@@ -185,18 +145,7 @@ class _PlanLimits:
         return b" ; gcode-feedopt: the limits the plan is timed with" + ending
 
     def restore(self, ending: bytes) -> list[bytes]:
-        fw, out = self.fw, []
         ending = b" ; gcode-feedopt: the printer's configured limits again" + ending
-        if self.klipper:
-            if self.raised["accel"]:
-                out.append(f"SET_VELOCITY_LIMIT ACCEL={_fmt(fw.configured_accel_mm_s2, 3)}".encode()
-                           + ending)
-        else:
-            if self.raised["max"]:
-                c = fw.configured_max_accel_mm_s2
-                out.append(f"M201 X{_fmt(c['x'], 3)} Y{_fmt(c['y'], 3)}".encode() + ending)
-            if self.raised["accel"]:
-                a = _fmt(fw.configured_accel_mm_s2, 3)
-                out.append(f"M204 P{a} R{a} T{a}".encode() + ending)
+        out = [t.encode() + ending for t in self.variant.configured_texts(self.fw, self.raised)]
         self.lines += len(out)
         return out

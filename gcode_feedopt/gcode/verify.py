@@ -20,12 +20,14 @@ from __future__ import annotations
 import pathlib
 
 from ..errors import VerifyError
+from ..firmware import LIMIT_COMMANDS
 from ..outputs import write_bytes
 from .reader import Program, read_program, split_lines
 from .writer import T_ACCEL, T_IDENT, T_META, T_NEW, T_ORIG, WriteResult
 
 E_TOL_MM = 1e-6
-_ACCEL_LINE = (b"M201 ", b"M204 ", b"M205 ", b"SET_VELOCITY_LIMIT ")
+#: the commands the firmware variants write to set limits, with the space after them
+_ACCEL_LINE = tuple(c.encode() + b" " for c in LIMIT_COMMANDS)
 XYZ_TOL_MM = 1e-9
 
 

@@ -237,7 +237,8 @@ class _Run:
         if not keep:
             lines = self.acc_state.restore(self._end(raw))
             self._accel(lines)
-            if lines and self.clamp_state is not None and self.acc_state.klipper and mi is not None:
+            if (lines and self.clamp_state is not None and self.acc_state.restores_clamp
+                    and mi is not None):
                 self.clamp_state.set_to_want(mi)
 
     def _limits_before_move(self, raw: bytes, mi: int) -> None:

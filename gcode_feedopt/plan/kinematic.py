@@ -17,22 +17,22 @@ Limits, per segment:
   velocity), so a plan never asks for a corner speed the firmware would refuse — the written
   G-code then runs as planned. Full reversals, E-only moves, dwells, waits and tool changes are
   exact stops.
-- Klipper: also its look-ahead with minimum_cruise_ratio (plan.trapezoid.klipper_lookahead)
+- Klipper: also its look-ahead with minimum_cruise_ratio (firmware.klipper.klipper_lookahead)
   and its extrude-only limits on retracting moves: the plan is Klipper's own plan
   (docs/firmware.md).
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 
+from ..firmware import by_flavour, firmware_for
+from ..firmware.base import segment_caps
 from ..gcode.path import SEG_LINE, Path
 from ..gcode.schedule import Schedule, SegmentPlan
-from .trapezoid import (Trapezoids, forward_backward, junction_limits, klipper_junction_v2,
-                        klipper_lookahead, sample, trapezoids)
+from .trapezoid import Trapezoids, sample
 
 
 def _axis_caps(path: Path, axis_limit: dict, scalar_cap: float | None) -> np.ndarray:
@@ -52,55 +52,12 @@ def _axis_caps(path: Path, axis_limit: dict, scalar_cap: float | None) -> np.nda
     return caps
 
 
-def _klipper_norm_cap(path: Path, acc: np.ndarray, axis_limit: dict, firmware) -> np.ndarray:
-    """Klipper has one acceleration, the vector's norm: where the writer clamps it to the
-    plan's limits (vm.firmware.accel_clamp) a diagonal XY move gets no more than an axis."""
-    if firmware.flavour != "klipper":
-        return acc
-    t_beg, _ = path.end_tangents()
-    xy = np.hypot(t_beg[:, 0], t_beg[:, 1]) > 1e-12
-    acc = acc.copy()
-    acc[xy] = np.minimum(acc[xy], min(axis_limit["x"], axis_limit["y"]))
-    return acc
-
-
-def deviation_for(firmware, accel_mm_s2: float) -> tuple[float, bool]:
-    """Junction deviation (mm) of the firmware and whether Klipper's centripetal rule applies."""
-    if firmware.flavour == "klipper":
-        scv = firmware.square_corner_velocity_mm_s
-        return scv * scv * (math.sqrt(2.0) - 1.0) / accel_mm_s2, True
-    return firmware.junction_deviation_mm, False
-
-
-def _firmware_caps(path: Path, fw_limits):
-    """Per-segment accel cap, feed cap, junction deviation and jerk-rule junction speeds from
-    the firmware's limits in force at each move (vm.firmware.move_limits)."""
-    mi = path.move_index
-    t_beg, t_end = path.end_tangents()
-    u = np.maximum(np.abs(t_beg), np.abs(t_end))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        a_axis = np.where(u > 1e-12, fw_limits.max_accel_mm_s2[mi] / u, np.inf).min(axis=1)
-        v_axis = np.where(u > 1e-12, fw_limits.max_feed_mm_s[mi] / u, np.inf).min(axis=1)
-    acc = np.minimum(fw_limits.accel_mm_s2[mi], a_axis)
-    vcap = np.minimum(v_axis, fw_limits.velocity_mm_s[mi])
-    jd = fw_limits.jd_mm[mi]
-    jerk = fw_limits.jerk_mm_s[mi]
-    jerk_v = None
-    if np.any(np.isfinite(jerk[:, 0])) and path.n_segments > 1:
-        dv = np.abs(t_beg[1:] - t_end[:-1])
-        with np.errstate(divide="ignore", invalid="ignore"):
-            jerk_v = np.where(dv > 1e-12, jerk[1:] / dv, np.inf).min(axis=1)
-        # finite only where classic jerk is on; junction_limits uses the deviation elsewhere
-        jerk_v = np.where(np.isfinite(jerk[1:, 0]), jerk_v, np.inf)
-    return acc, vcap, jd, jerk_v
-
-
 def writer_accel(path: Path, profile, fw_limits=None, amax_mm_s2: float | None = None):
     """(N,) the acceleration the firmware will use on each segment (for the writer's check
     that one line per move reproduces the plan)."""
     acc = segment_accel(path, profile, amax_mm_s2)
     if fw_limits is not None:
-        acc = np.minimum(acc, _firmware_caps(path, fw_limits)[0])
+        acc = np.minimum(acc, segment_caps(path, fw_limits)[0])
     return acc
 
 
@@ -122,7 +79,7 @@ class PlannerLimits:
     junction_mm_s: np.ndarray
     jerk_junction: np.ndarray | None = None
     #: Klipper: (N,) minimum_cruise_ratio's pseudo-accel of each segment (its look-ahead gives
-    #: a run of short moves one reduced peak, plan.trapezoid.klipper_lookahead); None: Marlin
+    #: a run of short moves one reduced peak, firmware.klipper.klipper_lookahead); None: Marlin
     pseudo_accel_mm_s2: np.ndarray | None = None
 
 
@@ -131,93 +88,23 @@ def planner_limits(path: Path, *, vmax_mm_s: float, axis_vmax_mm_s: dict,
                    feed_scale: float = 1.0, fw_limits=None) -> PlannerLimits:
     """Feed caps, per-move accelerations and junction speeds of the path (module docstring).
 
-    ``fw_limits`` (vm.firmware.move_limits): the firmware's settings in force at each move
+    ``fw_limits`` (firmware.MoveLimits): the firmware's settings in force at each move
     (M201/M203/M204/M205, SET_VELOCITY_LIMIT found in the file); the plan stays within them
-    so the firmware runs it as planned."""
-    n = path.n_segments
+    so the firmware runs it as planned. ``firmware``: the profile's firmware settings; the
+    junction rule and the caps are its variant's (firmware.Firmware.planner_limits)."""
+    variant = by_flavour(firmware.flavour)
     vcap = _axis_caps(path, axis_vmax_mm_s, vmax_mm_s)
     if use_slicer_feed:
         vcap = np.minimum(vcap, path.feed_mm_s * feed_scale)
-    acc = _klipper_norm_cap(path, _axis_caps(path, axis_amax_mm_s2, None), axis_amax_mm_s2,
-                            firmware)
+    acc = variant.norm_cap(path, _axis_caps(path, axis_amax_mm_s2, None), axis_amax_mm_s2)
     arc = path.kind != SEG_LINE
     if np.any(arc):
         a_xy = min(axis_amax_mm_s2["x"], axis_amax_mm_s2["y"])
         vcap[arc] = np.minimum(vcap[arc], np.sqrt(a_xy * path.radius_mm[arc]))
     # numbered (fixed) lines keep the slicer's speed: they are written back unchanged
     vcap = np.where(path.fixed, np.minimum(vcap, path.feed_mm_s), vcap)
-    if firmware.flavour == "klipper":
-        return _klipper_limits(path, vcap, acc, axis_amax_mm_s2, firmware, fw_limits)
-    jerk_v = None
-    if fw_limits is not None:
-        f_acc, f_vcap, jd, jerk_v = _firmware_caps(path, fw_limits)
-        acc = np.minimum(acc, f_acc)
-        vcap = np.minimum(vcap, f_vcap)
-    else:
-        a_ref = float(np.median(acc)) if n else 1.0
-        jd = np.full(n, deviation_for(firmware, a_ref)[0])
-    vj = np.zeros(n + 1)
-    if n:
-        vj[1:n] = junction_limits(path.junction_cos(), acc, jd[1:], None, jerk_v, vcap,
-                                  path.stop_after, path.length_mm)
-    jerk_j = None
-    if jerk_v is not None and n:
-        jerk_j = np.zeros(n + 1, bool)
-        jerk_j[1:n] = np.isfinite(jerk_v)
-    return PlannerLimits(vcap_mm_s=vcap, accel_mm_s2=acc, junction_mm_s=vj, jerk_junction=jerk_j)
-
-
-def _klipper_limits(path: Path, vcap: np.ndarray, acc: np.ndarray, axis_amax_mm_s2: dict,
-                    firmware, fw_limits) -> PlannerLimits:
-    """:class:`PlannerLimits` under Klipper's rules (vm.firmware's Klipper model), given the
-    plan's own caps ``vcap`` and ``acc``.
-
-    Klipper's one accel is what the writer leaves in force: the file's (M204 S, M204 P T,
-    SET_VELOCITY_LIMIT ACCEL), clamped to the plan's X/Y limit (vm.firmware.accel_clamp);
-    its junction deviation comes from that accel and square_corner_velocity, and each side of
-    a junction gets δ·a with its own segment's accel (so moves slowed by Z get slower
-    corners). A segment that retracts, or extrudes without moving X/Y, stays within the
-    extrude-only limits scaled by L/|dE|; where the extruder's share dE/L changes, the
-    junction stays within instantaneous_corner_velocity / |Δ(dE/L)|; minimum_cruise_ratio
-    gives the plan its pseudo-accel (plan.trapezoid.klipper_lookahead)."""
-    n = path.n_segments
-    L = path.length_mm
-    a_xy = min(axis_amax_mm_s2["x"], axis_amax_mm_s2["y"])
-    if fw_limits is not None:
-        mi = path.move_index
-        f_acc, f_vcap, jd_file, _ = _firmware_caps(path, fw_limits)
-        acc = np.minimum(acc, f_acc)
-        vcap = np.minimum(vcap, f_vcap)
-        file_a = fw_limits.accel_mm_s2[mi]
-        toolhead = np.minimum(file_a, a_xy)
-        jd = jd_file * file_a / toolhead
-        mcr = fw_limits.min_cruise_ratio[mi]
-        ef = fw_limits.extrude_factor[mi]
-        e_feed, e_acc = fw_limits.e_feed_mm_s[mi], fw_limits.e_accel_mm_s2[mi]
-    else:
-        toolhead = np.full(n, min(firmware.accel_mm_s2, a_xy))
-        scv = firmware.square_corner_velocity_mm_s
-        jd = scv * scv * (math.sqrt(2.0) - 1.0) / toolhead
-        mcr = np.full(n, firmware.minimum_cruise_ratio)
-        ef = np.ones(n)
-        e_feed = np.full(n, firmware.max_feed_mm_s["e"])
-        e_acc = np.full(n, firmware.max_accel_mm_s2["e"])
-    with np.errstate(divide="ignore", invalid="ignore"):
-        e_ratio = np.where(L > 0, path.de_mm * ef / np.where(L > 0, L, 1.0), 0.0)
-        no_xy = ((path.end_mm[:, 0] == path.start_mm[:, 0])
-                 & (path.end_mm[:, 1] == path.start_mm[:, 1]) & (path.kind == SEG_LINE))
-        e_lim = (e_ratio != 0.0) & (no_xy | (e_ratio < 0.0))
-        inv = 1.0 / np.abs(e_ratio)
-        vcap = np.where(e_lim, np.minimum(vcap, e_feed * inv), vcap)
-        acc = np.where(e_lim, np.minimum(acc, e_acc * inv), acc)
-    vj = np.zeros(n + 1)
-    if n:
-        vj[1:n] = np.sqrt(klipper_junction_v2(path.junction_cos(), acc, jd, L, vcap,
-                                              path.stop_after, e_ratio,
-                                              firmware.instantaneous_corner_velocity_mm_s))
-    pseudo = np.minimum(acc, toolhead * (1.0 - mcr))
-    return PlannerLimits(vcap_mm_s=vcap, accel_mm_s2=acc, junction_mm_s=vj,
-                         pseudo_accel_mm_s2=pseudo)
+    return PlannerLimits(**variant.planner_limits(path, vcap, acc, axis_amax_mm_s2, firmware,
+                                                  fw_limits))
 
 
 def plan_trapezoids(path: Path, *, vmax_mm_s: float, axis_vmax_mm_s: dict,
@@ -229,14 +116,9 @@ def plan_trapezoids(path: Path, *, vmax_mm_s: float, axis_vmax_mm_s: dict,
                          axis_amax_mm_s2=axis_amax_mm_s2, firmware=firmware,
                          use_slicer_feed=use_slicer_feed, feed_scale=feed_scale,
                          fw_limits=fw_limits)
-    if lim.pseudo_accel_mm_s2 is not None:
-        tr = klipper_lookahead(np.square(lim.junction_mm_s), path.length_mm, lim.accel_mm_s2,
-                               lim.pseudo_accel_mm_s2, lim.vcap_mm_s, path.dwell_after_s,
-                               path.dwell_before_s)
-    else:
-        vj = forward_backward(lim.junction_mm_s, path.length_mm, lim.accel_mm_s2)
-        tr = trapezoids(vj, path.length_mm, lim.accel_mm_s2, lim.vcap_mm_s, path.dwell_after_s,
-                        path.dwell_before_s)
+    tr = by_flavour(firmware.flavour).lookahead(
+        lim.junction_mm_s, path.length_mm, lim.accel_mm_s2, lim.pseudo_accel_mm_s2,
+        lim.vcap_mm_s, path.dwell_after_s, path.dwell_before_s)
     return (tr, lim) if with_limits else tr
 
 
@@ -274,8 +156,7 @@ def effective_limits(profile, vmax_mm_s: float | None = None, amax_mm_s2: float 
 def segment_accel(path: Path, profile, amax_mm_s2: float | None = None) -> np.ndarray:
     """(N,) acceleration along each segment that keeps every axis within its limit."""
     _, _, axis_a = effective_limits(profile, None, amax_mm_s2)
-    acc = _klipper_norm_cap(path, _axis_caps(path, axis_a, None), axis_a, profile.firmware)
-    return acc
+    return firmware_for(profile).norm_cap(path, _axis_caps(path, axis_a, None), axis_a)
 
 
 def plan_kinematic(path: Path, profile, *, use_slicer_feed: bool = False,
