@@ -11,6 +11,7 @@ chosen by the profile's ``firmware.flavour`` (:func:`firmware_for`):
 - marlin.py: Marlin 2; klipper.py: Klipper (docs/firmware.md);
 - replay.py: the file's settings replayed once (:class:`Replay`) and what the planner
   (:class:`MoveLimits`) and the writer (:class:`AccelSettings`, :class:`AccelClamp`) read;
+- variants.py: the one factory, :func:`firmware_for` (:func:`by_flavour`);
 - override.py: ``--accel plan`` (:class:`AccelOverride`) and the configured printer;
 - blocks.py: the firmware's planner blocks (vm.firmware times and samples them).
 """
@@ -18,33 +19,14 @@ chosen by the profile's ``firmware.flavour`` (:func:`firmware_for`):
 from __future__ import annotations
 
 from .base import Firmware, Limits
+from .blocks import Blocks, build_blocks
 from .klipper import Klipper
 from .marlin import Marlin
-
-_VARIANTS = {v.flavour: v() for v in (Marlin, Klipper)}
-#: every command a variant's added lines may start with (gcode.verify)
-LIMIT_COMMANDS = tuple(c for v in _VARIANTS.values() for c in v.limit_commands)
-
-
-def by_flavour(flavour: str) -> Firmware:
-    """The variant of a profile's ``firmware.flavour`` (``marlin``, ``klipper``)."""
-    try:
-        return _VARIANTS[flavour]
-    except KeyError:
-        raise ValueError(f"unknown firmware flavour {flavour!r}; use one of "
-                         f"{', '.join(_VARIANTS)}") from None
-
-
-def firmware_for(profile) -> Firmware:
-    """The variant whose rules the profile's printer runs (``profile.firmware.flavour``)."""
-    return by_flavour(profile.firmware.flavour)
-
-
-from .blocks import Blocks, build_blocks  # noqa: E402
-from .override import (ACCELS, AccelOverride, accel_override, as_configured,  # noqa: E402
+from .override import (ACCELS, AccelOverride, accel_override, as_configured,
                        override_restore_texts, plan_accels, raises_configured)
-from .replay import (AccelClamp, AccelSettings, MoveLimits, Replay, accel_clamp,  # noqa: E402
-                     accel_settings, move_limits)
+from .replay import (AccelClamp, AccelSettings, MoveLimits, Replay, accel_clamp, accel_settings,
+                     move_limits)
+from .variants import LIMIT_COMMANDS, by_flavour, firmware_for
 
 __all__ = ["ACCELS", "AccelClamp", "AccelOverride", "AccelSettings", "Blocks", "Firmware",
            "Klipper", "LIMIT_COMMANDS", "Limits", "Marlin", "MoveLimits", "Replay", "accel_clamp",

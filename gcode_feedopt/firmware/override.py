@@ -7,6 +7,7 @@ import dataclasses
 from dataclasses import dataclass
 
 from .replay import Replay
+from .variants import by_flavour, firmware_for
 
 #: ``--accel``: ``plan`` — the plan's accelerations (the profile's, within the machine's hardware
 #: limits) override lower ones the file sets; ``file`` — the file's own are kept
@@ -54,7 +55,6 @@ def plan_accels(profile) -> tuple[float, float, tuple]:
     """(M204 P, M204 T, (M201 X, Y)) the plan runs at: the profile's firmware values within the
     machine's hardware limits (``limits.amax_mm_s2``, ``limits.axis_amax_mm_s2``); Klipper's
     one accel within both axes' limits."""
-    from . import firmware_for
     return firmware_for(profile).plan_accels(profile)
 
 
@@ -112,7 +112,6 @@ def accel_override(program, profile, policy: str = "plan",
 def override_restore_texts(ov: AccelOverride) -> list[str]:
     """The commands that give the file's own values back after the last move
     (``ov.restore``)."""
-    from . import by_flavour
     return by_flavour(ov.flavour).override_texts(ov.restore) if ov.restore else []
 
 
@@ -120,7 +119,6 @@ def as_configured(profile):
     """The profile with the firmware's starting values as the printer is configured
     (``firmware.configured_*``): what a file runs with until it sets its own. The same
     profile when it states no configuration (the printer runs the profile's values)."""
-    from . import firmware_for
     fw = profile.firmware
     if fw.configured_accel_mm_s2 is None and fw.configured_max_accel_mm_s2 is None:
         return profile
@@ -136,7 +134,6 @@ def as_configured(profile):
 def raises_configured(profile) -> bool:
     """The printer as configured (``firmware.configured_*``) runs lower acceleration limits
     than the plan is timed with: the writer sets the plan's (gcode.firmware_lines._PlanLimits)."""
-    from . import firmware_for
     fw = profile.firmware
     if fw.configured_accel_mm_s2 is not None and fw.configured_accel_mm_s2 < max(
             fw.accel_mm_s2, fw.travel_accel_mm_s2):

@@ -14,6 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .base import initial_limits
+from .blocks import build_blocks
+from .variants import firmware_for
 
 
 @dataclass(frozen=True)
@@ -86,7 +88,6 @@ class Replay:
     the file's lines that lower them."""
 
     def __init__(self, program, profile, override=None, firmware=None):
-        from . import firmware_for
         self.program, self.profile, self.override = program, profile, override
         self.firmware = firmware or firmware_for(profile)
         lim = initial_limits(profile)
@@ -175,7 +176,6 @@ class Replay:
     def blocks(self):
         """The firmware's planner blocks (blocks.build_blocks), built once."""
         if self._blocks is None:
-            from .blocks import build_blocks
             self._blocks = build_blocks(self)
         return self._blocks
 

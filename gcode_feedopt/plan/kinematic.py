@@ -32,7 +32,7 @@ from ..firmware import by_flavour, firmware_for
 from ..firmware.base import segment_caps
 from ..gcode.path import SEG_LINE, Path
 from ..gcode.schedule import Schedule, SegmentPlan
-from .trapezoid import Trapezoids, sample
+from .trapezoid import sample
 
 
 def _axis_caps(path: Path, axis_limit: dict, scalar_cap: float | None) -> np.ndarray:
