@@ -345,50 +345,69 @@ def _scan(evaluate, grid, refine=True, coarse=None):
     return p, v, n
 
 
+class _Scorer:
+    """How a candidate regressor or prediction scores on axis A against ``base`` (the model so
+    far): the fit part's residual sum of squares, negated (higher is better).
+
+    Parameters are scanned against the twin's mean physics (no draw): the draw could trade
+    part of an effect for a machine inside the spread and bias its size toward none; the draw
+    enters the test (diagnose_arrays), which decides whether the effect is there. The
+    ``quick_*`` scores are least squares on the base's residual alone, for coarse scans."""
+
+    def __init__(self, A: _Axis, base: _Model):
+        self.A, self.base = A, base
+        self.cmd, self.ts, self.fit = A.cmd, A.ts, A.fit
+        self.pred, self.extra = base.pred, base.extra
+        # an effect inside the machine passes through its dynamics: the twin's mean response,
+        # the one the extended profile applies (twin.extensions)
+        self.hd = A.phys.mean
+        self.rfit = base.resid_mean[A.fit]
+
+    def with_extra(self, G) -> _Model:
+        return self.A.fit_model(self.pred, np.hstack([self.extra, G]))
+
+    def score_extra(self, G) -> float:
+        e = self.with_extra(G).resid_mean[self.fit]
+        return -float(e @ e)
+
+    def score_pred(self, p, G=None) -> float:
+        m = self.A.fit_model(p, self.extra if G is None else np.hstack([self.extra, G]))
+        e = m.resid_mean[self.fit]
+        return -float(e @ e)
+
+    def quick_extra(self, G) -> float:
+        Gf = G[self.fit]
+        w = np.linalg.lstsq(Gf, self.rfit, rcond=None)[0]
+        e = self.rfit - Gf @ w
+        return -float(e @ e)
+
+    def quick_pred(self, p) -> float:
+        e = self.rfit - (p - self.pred)[self.fit]
+        return -float(e @ e)
+
+
 def _candidates(A: _Axis, base: _Model, named_kinds, other: _Axis, base_other: _Model):
-    """Yield (kind, form, params, model, n_tried, q) of every catalogue kind on axis A, the
-    parameter scanned on the fit part against ``base`` (the model so far)."""
-    cmd, ts = A.cmd, A.ts
-    fit = A.fit
-    K = cmd.size
-    pred, extra = base.pred, base.extra
+    """[(kind, form, params, model, n_tried, q)] of every catalogue kind on axis A (delay,
+    gain and resonance_shift once per axis), each parameter scanned on the fit part against
+    ``base`` (the model so far)."""
+    S = _Scorer(A, base)
+    out = [c for c in (_periodic_time(S), _periodic_position(S), _backlash(S), _friction(S))
+           if c is not None]
+    if "delay" not in named_kinds:
+        out.append(_delay(S))
+    if "gain" not in named_kinds:
+        out.append(_gain(S))
+    if "resonance_shift" not in named_kinds:
+        out.append(_resonance_shift(S))
+    out.append(_cross_coupling(S, other))
+    return out
 
-    def with_extra(G):
-        return A.fit_model(pred, np.hstack([extra, G]))
 
-    # Parameters are scanned against the twin's mean physics (no draw): the draw could trade
-    # part of an effect for a machine inside the spread and bias its size toward none; the
-    # draw enters the test (diagnose_arrays), which decides whether the effect is there.
-    def score_extra(G):
-        m = with_extra(G)
-        e = m.resid_mean[fit]
-        return -float(e @ e)
-
-    def score_pred(p, G=None):
-        m = A.fit_model(p, extra if G is None else np.hstack([extra, G]))
-        e = m.resid_mean[fit]
-        return -float(e @ e)
-
-    rfit = base.resid_mean[fit]
-
-    def quick_extra(G):
-        Gf = G[fit]
-        w = np.linalg.lstsq(Gf, rfit, rcond=None)[0]
-        e = rfit - Gf @ w
-        return -float(e @ e)
-
-    def quick_pred(p):
-        e = rfit - (p - pred)[fit]
-        return -float(e @ e)
-
-    out = []
-    t = np.arange(K) * ts
-    r = base.resid_mean
-    # an effect inside the machine passes through its dynamics: the twin's mean response, the
-    # one the extended profile applies (twin.extensions)
-    hd = A.phys.mean
-    # periodic_time: from the three largest spectral peaks of the fit-part residual
-    rf = r[fit]
+def _periodic_time(S: _Scorer):
+    """A sinusoid in time, from the three largest spectral peaks of the fit-part residual."""
+    ts, fit = S.ts, S.fit
+    t = np.arange(S.cmd.size) * ts
+    rf = S.base.resid_mean[fit]
     nf = rf.size
     n_fft = 1 << int(np.ceil(np.log2(max(nf, 2) * 4)))
     R = np.abs(np.fft.rfft((rf - rf.mean()) * np.hanning(nf), n_fft))
@@ -410,20 +429,26 @@ def _candidates(A: _Axis, base: _Model, named_kinds, other: _Axis, base_other: _
     best = None
     tried = 0
     for f0 in peaks:
-        fr, v, n = _scan(lambda fr: score_extra(sincos_t(fr)), np.linspace(f0 - 2 * df, f0 + 2 * df, 9))
+        fr, v, n = _scan(lambda fr: S.score_extra(sincos_t(fr)),
+                         np.linspace(f0 - 2 * df, f0 + 2 * df, 9))
         tried += n
         if best is None or v > best[1]:
             best = (fr, v)
-    if best is not None:
-        fr = best[0]
-        m = with_extra(sincos_t(fr))
-        w = m.w_mean[-2:]
-        out.append(("periodic_time", "time", {"frequency_hz": float(fr),
-                                               "amplitude_mm": float(np.hypot(*w)),
-                                               "phase_rad": float(np.arctan2(w[1], w[0]))},
-                    m, tried, 3))
+    if best is None:
+        return None
+    fr = best[0]
+    m = S.with_extra(sincos_t(fr))
+    w = m.w_mean[-2:]
+    return ("periodic_time", "time", {"frequency_hz": float(fr),
+                                      "amplitude_mm": float(np.hypot(*w)),
+                                      "phase_rad": float(np.arctan2(w[1], w[0]))},
+            m, tried, 3)
 
-    # periodic_position
+
+def _periodic_position(S: _Scorer):
+    """A sinusoid of the commanded position, at the output or through the dynamics."""
+    cmd, hd = S.cmd, S.hd
+
     def sincos_x(lam):
         return np.column_stack([np.sin(2 * np.pi * cmd / lam), np.cos(2 * np.pi * cmd / lam)])
 
@@ -432,25 +457,28 @@ def _candidates(A: _Axis, base: _Model, named_kinds, other: _Axis, base_other: _
         return np.column_stack([respond(G[:, 0], hd), respond(G[:, 1], hd)])
 
     grid = np.geomspace(1.0, 60.0, 300)
-    lam, v_out, n = _scan(lambda l: score_extra(sincos_x(l)), grid,
-                          coarse=lambda l: quick_extra(sincos_x(l)))
-    lam_d, v_dyn, n2 = _scan(lambda l: score_extra(sincos_x_dyn(l)),
+    lam, v_out, n = _scan(lambda l: S.score_extra(sincos_x(l)), grid,
+                          coarse=lambda l: S.quick_extra(sincos_x(l)))
+    lam_d, v_dyn, n2 = _scan(lambda l: S.score_extra(sincos_x_dyn(l)),
                               np.geomspace(lam / 1.1, lam * 1.1, 41),
-                              coarse=lambda l: quick_extra(sincos_x_dyn(l)))
+                              coarse=lambda l: S.quick_extra(sincos_x_dyn(l)))
     if v_dyn >= v_out:
         form, G, lam = "dynamics", sincos_x_dyn(lam_d), lam_d
     else:
         form, G = "output", sincos_x(lam)
-    m = with_extra(G)
+    m = S.with_extra(G)
     w = m.w_mean[-2:]
-    out.append(("periodic_position", form, {"wavelength_mm": float(lam),
-                                             "amplitude_mm": float(np.hypot(*w)),
-                                             "phase_rad": float(np.arctan2(w[1], w[0])),
-                                             "form": form},
-                m, n + n2, 3))
+    return ("periodic_position", form, {"wavelength_mm": float(lam),
+                                        "amplitude_mm": float(np.hypot(*w)),
+                                        "phase_rad": float(np.arctan2(w[1], w[0])),
+                                        "form": form},
+            m, n + n2, 3)
 
-    # backlash (unit weight: the width is the parameter) + a free offset
-    ones = np.ones((K, 1))
+
+def _backlash(S: _Scorer):
+    """A play of width b (unit weight: the width is the parameter) + a free offset."""
+    A, cmd, pred = S.A, S.cmd, S.pred
+    ones = np.ones((cmd.size, 1))
 
     def bl_input(b):
         return pred + respond(fx.play(cmd, b), A.phys.mean) - A.p0
@@ -462,21 +490,35 @@ def _candidates(A: _Axis, base: _Model, named_kinds, other: _Axis, base_other: _
     best = None
     tried = 0
     for form, make in (("input", bl_input), ("output", bl_output)):
-        b, v, n = _scan(lambda b: score_pred(make(b), ones), grid,
-                        coarse=lambda b: quick_pred(make(b)))
+        b, v, n = _scan(lambda b: S.score_pred(make(b), ones), grid,
+                        coarse=lambda b: S.quick_pred(make(b)))
         tried += n
         if best is None or v > best[2]:
             best = (form, b, v, make)
     form, b, _, make = best
-    m = A.fit_model(make(b), np.hstack([extra, ones]))
-    out.append(("backlash", form, {"magnitude_mm": float(b), "offset_mm": float(m.w_mean[-1]),
-                                    "form": form}, m, tried, 2))
+    m = A.fit_model(make(b), np.hstack([S.extra, ones]))
+    return ("backlash", form, {"magnitude_mm": float(b), "offset_mm": float(m.w_mean[-1]),
+                               "form": form}, m, tried, 2)
 
-    # friction: free weight = the quasi-static lag. A Coulomb force opposes the motion: it
-    # dissipates, so the axis lags (weight > 0). A lead is not friction: on a PID servo whose
-    # modal fit leaves a few µm of lead (tests/foreign, seed 5) "friction −0.010 mm" was named
-    # on two of three clean logs, and an integrator's transients at reversals came out as
-    # −0.003 to −0.033 mm (benchmarks/foreign_effects.py). Only forms with a lag compete.
+
+def _friction(S: _Scorer):
+    """A Coulomb force; free weight = the quasi-static lag.
+
+    A Coulomb force opposes the motion: it dissipates, so the axis lags (weight > 0). A lead
+    is not friction: on a PID servo whose modal fit leaves a few µm of lead (tests/foreign,
+    seed 5) "friction −0.010 mm" was named on two of three clean logs, and an integrator's
+    transients at reversals came out as −0.003 to −0.033 mm (benchmarks/foreign_effects.py).
+    Only forms with a lag compete.
+
+    The same force as a loop with integral action (a servo) sees it: washed out in τ_i
+    (twin.extensions.integral_sign). Tried only on an axis whose modal fit has real poles,
+    which such a loop puts below its bandwidth (AxisPhysics.integral_action): a corexy's
+    friction (tests/foreign, seed 18) otherwise took this form and came out a tie with
+    backlash. It nests the steady forms (τ_i → ∞) and has τ_i to spare, so it must also beat
+    the best of them significantly: its gain in the fit part's squares, in units of its
+    residual variance per effective sample, above the χ²(1) quantile at 1 %
+    Bonferroni-divided over the τ_i tried."""
+    A, cmd, ts, fit, hd = S.A, S.cmd, S.ts, S.fit, S.hd
     best = None
     for tau in FRICTION_TAU_S:
         s = relax_sign(cmd, ts, tau)
@@ -484,7 +526,7 @@ def _candidates(A: _Axis, base: _Model, named_kinds, other: _Axis, base_other: _
         if A.phys.force is not None:
             forms.append(("force", respond(s, A.phys.force)[:, None]))
         for form, G in forms:
-            m = with_extra(G)
+            m = S.with_extra(G)
             if not m.w_mean[-1] > 0:
                 continue
             e = m.resid_mean[fit]
@@ -492,20 +534,13 @@ def _candidates(A: _Axis, base: _Model, named_kinds, other: _Axis, base_other: _
             # τ is seen only where the axis rests after moving: the simplest (first) wins ties
             if best is None or v > best[0] + 1e-9 * abs(best[0]):
                 best = (v, form, tau, m)
-    # the same force as a loop with integral action (a servo) sees it: washed out in τ_i
-    # (twin.extensions.integral_sign). Tried only on an axis whose modal fit has real poles,
-    # which such a loop puts below its bandwidth (AxisPhysics.integral_action): a corexy's
-    # friction (tests/foreign, seed 18) otherwise took this form and came out a tie with
-    # backlash. It nests the steady forms (τ_i → ∞) and has τ_i to spare, so it must also
-    # beat the best of them significantly: its gain in the fit part's squares, in units of
-    # its residual variance per effective sample, above the χ²(1) quantile at 1 %
-    # Bonferroni-divided over the τ_i tried.
     fh = A.phys.force if A.phys.force is not None else hd
     bar = stats.chi2.ppf(1.0 - INTEGRAL_ALPHA / len(INTEGRAL_TAU_S), 1)
+    taus_i = INTEGRAL_TAU_S if A.phys.integral_action else ()
     best_int = None
-    for tau_i in INTEGRAL_TAU_S if A.phys.integral_action else ():
+    for tau_i in taus_i:
         G = respond(integral_sign(cmd, ts, tau_i), fh)[:, None]
-        m = with_extra(G)
+        m = S.with_extra(G)
         if not m.w_mean[-1] > 0:
             continue
         e = m.resid_mean[fit]
@@ -518,54 +553,63 @@ def _candidates(A: _Axis, base: _Model, named_kinds, other: _Axis, base_other: _
             best = best_int
         elif (best_int[0] - best[0]) * _n_eff(e) / float(e @ e) > bar:
             best = best_int
-    if best is not None:
-        _, form, tau, m = best
-        key = "integral_s" if form == "integral" else "relax_s"
-        out.append(("friction", form, {"magnitude_mm": float(m.w_mean[-1]),
-                                        key: float(tau), "form": form},
-                    m, 3 * len(FRICTION_TAU_S) + (len(INTEGRAL_TAU_S) if A.phys.integral_action else 0), 2))
+    if best is None:
+        return None
+    _, form, tau, m = best
+    key = "integral_s" if form == "integral" else "relax_s"
+    return ("friction", form, {"magnitude_mm": float(m.w_mean[-1]), key: float(tau),
+                               "form": form},
+            m, 3 * len(FRICTION_TAU_S) + len(taus_i), 2)
 
-    # delay (unit weight)
-    if "delay" not in named_kinds:
-        grid = np.geomspace(2e-4, 0.05, 40)
-        d, v, n = _scan(lambda d: score_pred(fx.delay_signal(pred, d, ts)), grid,
-                        coarse=lambda d: quick_pred(fx.delay_signal(pred, d, ts)))
-        m = A.fit_model(fx.delay_signal(pred, d, ts), extra)
-        out.append(("delay", "command", {"seconds": float(d)}, m, n, 1))
 
-    # gain about the machine origin: free weight on the prediction
-    if "gain" not in named_kinds:
-        m = with_extra(pred[:, None])
-        out.append(("gain", "command", {"scale": float(1.0 + m.w_mean[-1])}, m, 1, 1))
+def _delay(S: _Scorer):
+    """The prediction delayed (unit weight: the delay is the parameter)."""
+    pred, ts = S.pred, S.ts
+    grid = np.geomspace(2e-4, 0.05, 40)
+    d, v, n = _scan(lambda d: S.score_pred(fx.delay_signal(pred, d, ts)), grid,
+                    coarse=lambda d: S.quick_pred(fx.delay_signal(pred, d, ts)))
+    m = S.A.fit_model(fx.delay_signal(pred, d, ts), S.extra)
+    return ("delay", "command", {"seconds": float(d)}, m, n, 1)
 
-    # resonance shift (unit weight)
-    if "resonance_shift" not in named_kinds:
-        f_mode = A.phys.mode_hz
-        # the rescaled form's frequency is the peak of |H| (as the virtual machine moves it);
-        # the mass form's the dominant mode's natural frequency (as benchA's labels state it)
-        f_peak = fx.dominant_mode_hz(A.phys.mean, ts)
-        forms = [("scale", lambda f1: fx.rescale_impulse_response(A.phys.mean, f1 / f_peak))]
-        if A.phys.shifted is not None:
-            forms.insert(0, ("mass", A.phys.shifted))
-        grid = f_mode * np.linspace(0.6, 1.5, 19)
-        best = None
-        tried = 0
-        for form, hfun in forms:
-            def p_of(f1, hfun=hfun):
-                return pred + respond(cmd, hfun(f1)) - A.p0
-            f1, v, n = _scan(lambda f1: score_pred(p_of(f1)), grid,
-                             coarse=lambda f1: quick_pred(p_of(f1)))
-            tried += n
-            if best is None or v > best[2]:
-                best = (form, f1, v, p_of)
-        form, f1, _, p_of = best
-        m = A.fit_model(p_of(f1), extra)
-        out.append(("resonance_shift", form, {"frequency_hz": float(f1), "form": form}, m,
-                    tried, 1))
 
-    # cross coupling from the other axis
-    # (the other axis's predicted acceleration: its carriage's reaction, ringing included; its
-    # commanded one: a motor force that follows the command, tests/foreign cross_coupling_cmd)
+def _gain(S: _Scorer):
+    """A gain about the machine origin: a free weight on the prediction."""
+    m = S.with_extra(S.pred[:, None])
+    return ("gain", "command", {"scale": float(1.0 + m.w_mean[-1])}, m, 1, 1)
+
+
+def _resonance_shift(S: _Scorer):
+    """The dominant mode moved (unit weight: its frequency is the parameter). The rescaled
+    form's frequency is the peak of |H| (as the virtual machine moves it); the mass form's the
+    dominant mode's natural frequency (as benchA's labels state it)."""
+    A, cmd, ts, pred = S.A, S.cmd, S.ts, S.pred
+    f_mode = A.phys.mode_hz
+    f_peak = fx.dominant_mode_hz(A.phys.mean, ts)
+    forms = [("scale", lambda f1: fx.rescale_impulse_response(A.phys.mean, f1 / f_peak))]
+    if A.phys.shifted is not None:
+        forms.insert(0, ("mass", A.phys.shifted))
+    grid = f_mode * np.linspace(0.6, 1.5, 19)
+    best = None
+    tried = 0
+    for form, hfun in forms:
+        def p_of(f1, hfun=hfun):
+            return pred + respond(cmd, hfun(f1)) - A.p0
+        f1, v, n = _scan(lambda f1: S.score_pred(p_of(f1)), grid,
+                         coarse=lambda f1: S.quick_pred(p_of(f1)))
+        tried += n
+        if best is None or v > best[2]:
+            best = (form, f1, v, p_of)
+    form, f1, _, p_of = best
+    m = A.fit_model(p_of(f1), S.extra)
+    return ("resonance_shift", form, {"frequency_hz": float(f1), "form": form}, m, tried, 1)
+
+
+def _cross_coupling(S: _Scorer, other: _Axis):
+    """The other axis's motion: its predicted acceleration (its carriage's reaction, ringing
+    included), its commanded one (a motor force that follows the command, tests/foreign
+    cross_coupling_cmd), the predicted one twice through the dynamics (a corexy's belts) or
+    its position; the form that fits best."""
+    ts, hd = S.ts, S.hd
     po = other.p0
 
     def acc(p):
@@ -574,13 +618,12 @@ def _candidates(A: _Axis, base: _Model, named_kinds, other: _Axis, base_other: _
     G_acc = respond(acc(po), hd)[:, None]
     forms = {"acceleration": G_acc, "command": respond(acc(other.cmd), hd)[:, None],
              "belt": respond(G_acc[:, 0], hd)[:, None], "position": (po - po[0])[:, None]}
-    score = {form: score_extra(G) for form, G in forms.items()}
+    score = {form: S.score_extra(G) for form, G in forms.items()}
     form = max(forms, key=lambda f: score[f])     # ties: the first, in the order above
-    m = with_extra(forms[form])
+    m = S.with_extra(forms[form])
     name = "coefficient" if form == "position" else "mm_per_mm_s2"
     params = {"from_axis": other.ax, name: float(m.w_mean[-1]), "form": form}
-    out.append(("cross_coupling", form, params, m, len(forms), 2))
-    return out
+    return ("cross_coupling", form, params, m, len(forms), 2)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -656,9 +699,8 @@ def diagnose_arrays(cmd_mm: np.ndarray, meas_mm: np.ndarray, ts_s: float, impuls
     named: list[Candidate] = []
     named_kinds = {ax: set() for ax in AXES}
     all_cands: list[Candidate] = []
+    crit_hold = float(stats.chi2.isf(ALPHA, 1))
     for round_ in range(MAX_EFFECTS):
-        cands = []
-        crit_hold = float(stats.chi2.isf(ALPHA, 1))
         raw = []
         for ax in AXES:
             other = "y" if ax == "x" else "x"
@@ -667,51 +709,12 @@ def diagnose_arrays(cmd_mm: np.ndarray, meas_mm: np.ndarray, ts_s: float, impuls
                 if kind in named_kinds[ax]:
                     continue
                 raw.append((ax, kind, form, params, m, n_tried, q))
-        M = sum(r[5] for r in raw)
-        for ax, kind, form, params, m, n_tried, q in raw:
-            a = A[ax]
-            # the bar on each part is the better of the two (a mode moved on the fit part may
-            # fit the held-out part worse: the test must not get easier for it)
-            bars = [bar[ax], base[ax]]
-            if kind == "periodic_time":
-                ring = _ring_bar(a, A["y" if ax == "x" else "x"], bar[ax], params["frequency_hz"])
-                if ring is not None:
-                    bars.append(ring)
-            ss0_f = min(a.ss(b, fit) for b in bars)
-            ss0_h = min(a.ss(b, hold) for b in bars)
-            ss1_f, ss1_h = a.ss(m, fit), a.ss(m, hold)
-            ne_f = _n_eff(m.resid[fit])
-            ne_h = _n_eff(m.resid[hold]) if K - nfit > 3 else 1.0
-            t_fit = (ss0_f - ss1_f) / max(ss1_f / ne_f, 1e-30)
-            t_hold = (ss0_h - ss1_h) / max(ss1_h / ne_h, 1e-30)
-            crit_fit = float(stats.chi2.isf(ALPHA / max(M, 1), q))
-            cands.append(Candidate(kind, ax, params, form, ss1_f, ss1_h, ss0_f - ss1_f,
-                                   ss0_h - ss1_h, (ss0_h - ss1_h) / ss0_h if ss0_h > 0 else 0.0,
-                                   float(t_fit), float(t_hold), crit_fit, crit_hold, m))
-        cands.sort(key=lambda c: -c.explained_fit)
+        cands = _judge(raw, A, bar, base, fit, hold, K - nfit, crit_hold)
         if round_ == 0:
             all_cands = cands
-        passing = [c for c in cands if c.passes]
-        if not passing:
+        pick = _choose(cands, fit, hold, K - nfit, crit_hold)
+        if pick is None:
             break
-        pick = passing[0]
-        # candidates the fit part cannot tell from the leader (their ΔSS below the bar an
-        # effect must clear, crit_fit in units of the leader's noise: e.g. a delay, a friction
-        # and a backlash are all a constant lag on a stretch of steady motion) are told apart
-        # by the held-out part, which none was fitted on
-        ne_f = _n_eff(pick.model.resid[fit])
-        noise_f = pick.ss_fit / max(ne_f, 1e-30)
-        tied = [c for c in passing if (c.ss_fit - pick.ss_fit) <= c.crit_fit * noise_f]
-        pick = max(tied, key=lambda c: c.explained_hold)
-        if pick.kind in ("friction", "backlash"):
-            rival = next((c for c in cands if c.axis == pick.axis and c.kind ==
-                          ("backlash" if pick.kind == "friction" else "friction")), None)
-            if rival is not None:
-                ne_h = _n_eff(pick.model.resid[hold]) if K - nfit > 3 else 1.0
-                t = (rival.ss_hold - pick.ss_hold) / max(pick.ss_hold / ne_h, 1e-30)
-                if t <= crit_hold:
-                    pick.params = {**pick.params, "tie": {"kind": rival.kind,
-                                                          "params": dict(rival.params)}}
         named.append(pick)
         named_kinds[pick.axis].add(pick.kind)
         if pick.kind in ("friction", "backlash"):  # one of the two per axis (module docstring)
@@ -743,6 +746,64 @@ def diagnose_arrays(cmd_mm: np.ndarray, meas_mm: np.ndarray, ts_s: float, impuls
         warmup_samples=w0,
         residual_mm=np.column_stack([resid0[ax] for ax in AXES]),
         corrected_mm=np.column_stack([base[ax].resid for ax in AXES]), named=named)
+
+
+def _judge(raw, A: dict, bar: dict, base: dict, fit, hold, n_hold: int,
+           crit_hold: float) -> list[Candidate]:
+    """Each raw candidate (axis, kind, form, params, model, n_tried, q) tested against what an
+    effect on its axis must beat, on the fit part (χ²(q) at ALPHA Bonferroni-divided over
+    every parameter value tried this round, M) and on the held-out part; most explained on
+    the fit part first."""
+    M = sum(r[5] for r in raw)
+    cands = []
+    for ax, kind, form, params, m, n_tried, q in raw:
+        a = A[ax]
+        # the bar on each part is the better of the two (a mode moved on the fit part may
+        # fit the held-out part worse: the test must not get easier for it)
+        bars = [bar[ax], base[ax]]
+        if kind == "periodic_time":
+            ring = _ring_bar(a, A["y" if ax == "x" else "x"], bar[ax], params["frequency_hz"])
+            if ring is not None:
+                bars.append(ring)
+        ss0_f = min(a.ss(b, fit) for b in bars)
+        ss0_h = min(a.ss(b, hold) for b in bars)
+        ss1_f, ss1_h = a.ss(m, fit), a.ss(m, hold)
+        ne_f = _n_eff(m.resid[fit])
+        ne_h = _n_eff(m.resid[hold]) if n_hold > 3 else 1.0
+        t_fit = (ss0_f - ss1_f) / max(ss1_f / ne_f, 1e-30)
+        t_hold = (ss0_h - ss1_h) / max(ss1_h / ne_h, 1e-30)
+        crit_fit = float(stats.chi2.isf(ALPHA / max(M, 1), q))
+        cands.append(Candidate(kind, ax, params, form, ss1_f, ss1_h, ss0_f - ss1_f,
+                               ss0_h - ss1_h, (ss0_h - ss1_h) / ss0_h if ss0_h > 0 else 0.0,
+                               float(t_fit), float(t_hold), crit_fit, crit_hold, m))
+    cands.sort(key=lambda c: -c.explained_fit)
+    return cands
+
+
+def _choose(cands: list, fit, hold, n_hold: int, crit_hold: float) -> Candidate | None:
+    """The effect a round names among the passing candidates, or None."""
+    passing = [c for c in cands if c.passes]
+    if not passing:
+        return None
+    pick = passing[0]
+    # candidates the fit part cannot tell from the leader (their ΔSS below the bar an effect
+    # must clear, crit_fit in units of the leader's noise: e.g. a delay, a friction and a
+    # backlash are all a constant lag on a stretch of steady motion) are told apart by the
+    # held-out part, which none was fitted on
+    ne_f = _n_eff(pick.model.resid[fit])
+    noise_f = pick.ss_fit / max(ne_f, 1e-30)
+    tied = [c for c in passing if (c.ss_fit - pick.ss_fit) <= c.crit_fit * noise_f]
+    pick = max(tied, key=lambda c: c.explained_hold)
+    if pick.kind in ("friction", "backlash"):
+        rival = next((c for c in cands if c.axis == pick.axis and c.kind ==
+                      ("backlash" if pick.kind == "friction" else "friction")), None)
+        if rival is not None:
+            ne_h = _n_eff(pick.model.resid[hold]) if n_hold > 3 else 1.0
+            t = (rival.ss_hold - pick.ss_hold) / max(pick.ss_hold / ne_h, 1e-30)
+            if t <= crit_hold:
+                pick.params = {**pick.params, "tie": {"kind": rival.kind,
+                                                      "params": dict(rival.params)}}
+    return pick
 
 
 def _absorb_mode(a: _Axis, plain: _Model, named_kinds=()) -> _Model:
