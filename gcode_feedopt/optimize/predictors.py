@@ -528,7 +528,8 @@ def predict_trajectory(tp: TwinPredictor, cmd: np.ndarray, series: bool = False,
     and the factor series are FFT convolutions, the self-predicted errors (paper Eq. 5)
     follow the AR recursion e_t = μ₀ + Σ β_x x̂_{t−lag} − x̂_t + Σ β_e e_{t−lag} (one
     ``lfilter``), and the variance terms are lag convolutions plus ψᵀΣ_βψ in row chunks.
-    A whole Benchy (1.2 M samples per axis) takes seconds.
+    A whole Benchy (1.2 M samples per axis) takes seconds. Long for a reason: one vectorized
+    pass whose steps mirror TwinPredictor's recursion term by term (and are tested against it).
 
     ``ref``: (K, 2) per-sample reference the deviations are taken from (default: the first
     command, as the windowed twin). Several independent windows can be predicted in one call

@@ -201,7 +201,12 @@ def _diff_rows(tan: np.ndarray, order: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def build_lp(w: WindowData) -> LinearProgram:
-    """Assemble the window LP (see the module docstring) in scaled variables."""
+    """Assemble the window LP (see the module docstring) in scaled variables.
+
+    Long for a reason: the constraint blocks in the module docstring's order (path end,
+    velocity, acceleration, the chance bound's two sides, the terminal rest), each a few
+    lines over the same cumulative-sum operator L and scaling; split apart they would pass
+    the same eight arrays to each piece."""
     n = w.n
     ts = w.ts_s
     ds_ref = max(float(np.max(w.ds_max_mm)), 1e-9)

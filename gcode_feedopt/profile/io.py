@@ -209,7 +209,10 @@ def _feature_tolerance(ls: _Section, origin: str) -> dict:
 
 
 def parse_profile(data, origin: str, base_dir: pathlib.Path | None) -> MachineProfile:
-    """Build a MachineProfile from the YAML mapping ``data``."""
+    """Build a MachineProfile from the YAML mapping ``data``.
+
+    Long for a reason: one flat read per key of the schema, section after section, each
+    through a bounded getter that names the key in its error (profile/schema.py's order)."""
     top = _Section(data, "", origin)
     version = top.getint("schema", SCHEMA_VERSION)
     if version != SCHEMA_VERSION:

@@ -506,6 +506,9 @@ def fit_modal(freq_hz, response, *, n_modes: int | None = None, init: ModalModel
         init: start from this model (its order is used): members of a set start from the
             set's first fit.
         dc_gain: pinned DC gain (1 for a position axis), or None to fit it.
+
+    Long for a reason: the two paths (a member from the set's fit; the order chosen mode by
+    mode) each keep beside their steps the measured case that made them necessary.
     """
     f = np.asarray(freq_hz, float)
     h = np.asarray(response, complex)
