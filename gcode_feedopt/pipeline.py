@@ -226,13 +226,70 @@ def optimize_file(in_path, out_path, profile, opts: Options, progress=None) -> R
     say = progress or (lambda stage: None)
     in_path = pathlib.Path(in_path)
     out_path = pathlib.Path(out_path) if out_path is not None else in_path
-    targets = check_run_outputs(in_path, out_path, opts)
-    req = PlanRequest.from_options(profile, opts)
-    wall = {}
+    run = _Run(in_path=in_path, out_path=out_path, profile=profile, opts=opts,
+               req=PlanRequest.from_options(profile, opts),
+               targets=check_run_outputs(in_path, out_path, opts))
+    _read(run, say)
+    _plan(run, say)
+    # write, verify and time: a few hundred thousand short-lived objects each and no reference
+    # cycle; with the two programs alive, every pass of the cyclic collector walks millions of
+    # objects (gc_paused)
+    with gc_paused():
+        _write(run, say)
+        _time_both(run, say)
+    if run.sched.method != "kinematic":
+        t0 = time.perf_counter()
+        say("executing the output on the firmware model and plant")
+        run.executed = execute_check(run.out_program, run.configured, run.req.tolerance_mm,
+                                     run.out_replay)
+        run.wall["execute"] = time.perf_counter() - t0
+    _save(run)
+    rep = _report(run)
+    _notes(run, rep)
+    return rep
+
+
+@dataclass
+class _Run:
+    """One ``optimize_file`` run: its inputs, then what each stage made (None until then)."""
+
+    in_path: pathlib.Path
+    out_path: pathlib.Path
+    profile: object
+    opts: Options
+    req: PlanRequest
+    targets: dict
+    wall: dict = dataclasses.field(default_factory=dict)
+    program: object = None
+    file_replay: object = None      # the file's settings replayed (firmware.Replay)
+    override: object = None         # --accel plan's (firmware.accel_override) or None
+    replay: object = None           # file_replay with the override
+    fw_limits: object = None
+    path: object = None
+    tol: object = None
+    seg_feats: object = None
+    tol_notes: list = dataclasses.field(default_factory=list)
+    sched: object = None
+    t_in: float = 0.0
+    result: object = None
+    out_program: object = None
+    configured: object = None       # the profile as its owner configured the firmware
+    out_replay: object = None
+    fw_in: float = 0.0
+    fw_out: float = 0.0
+    fw_in_raised: float = 0.0
+    fw_in_plan: float = 0.0
+    executed: dict | None = None
+    keep: bool = False
+
+
+def _read(run: _Run, say) -> None:
+    """Read the file, replay its firmware settings once, build its path."""
+    profile, opts, in_path = run.profile, run.opts, run.in_path
     t0 = time.perf_counter()
     say("reading")
-    program = read_for(in_path, profile)
-    wall["parse"] = time.perf_counter() - t0
+    program = run.program = read_for(in_path, profile)
+    run.wall["parse"] = time.perf_counter() - t0
     if program.processed_line is not None and not opts.force:
         raise AlreadyProcessedError(
             f"{in_path}:{program.processed_line + 1}: already processed by gcode-feedopt; "
@@ -241,96 +298,115 @@ def optimize_file(in_path, out_path, profile, opts: Options, progress=None) -> R
     # the file's settings, replayed once; --accel plan: the plan's accelerations where the
     # file's lines lower them (the writer adds a line after each such line); the planner, the
     # clamp and the slowed stretches' restores see the plan's values (``replay``)
-    file_replay = firmware.Replay(program, profile)
-    override = firmware.accel_override(program, profile, opts.accel, file_replay)
-    replay = file_replay.overridden(override)
-    fw_limits = replay.move_limits()
+    run.file_replay = firmware.Replay(program, profile)
+    run.override = firmware.accel_override(program, profile, opts.accel, run.file_replay)
+    run.replay = run.file_replay.overridden(run.override)
+    run.fw_limits = run.replay.move_limits()
     with gc_paused():
-        path = path_for(program, profile, fw_limits)
-    if path.n_segments == 0:
+        run.path = path_for(program, profile, run.fw_limits)
+    if run.path.n_segments == 0:
         raise GCodeError(f"{in_path}: no move travels in X, Y or Z; nothing to re-time")
-    wall["path"] = time.perf_counter() - t0
+    run.wall["path"] = time.perf_counter() - t0
+
+
+def _plan(run: _Run, say) -> None:
+    """Plan the path (and time the input at the same limits)."""
+    path, profile, req, fw_limits = run.path, run.profile, run.req, run.fw_limits
     t0 = time.perf_counter()
     check_plan_size(path, profile, req.vmax_mm_s, req.amax_mm_s2, req.speed == "slicer",
-                    fw_limits, where=str(in_path))
+                    fw_limits, where=str(run.in_path))
     say(f"planning {path.n_segments:,} moves ({req.method})")
-    tol, seg_feats, tol_notes = tolerance_for(path, program, req)
-    sched = plan(path, profile, req, fw_limits, tol)
-    t_in = input_time_s(path, profile, req, fw_limits)
-    wall["plan"] = time.perf_counter() - t0
-    # write, verify and time: a few hundred thousand short-lived objects each and no reference
-    # cycle; with the two programs alive, every pass of the cyclic collector walks millions of
-    # objects (gc_paused)
-    with gc_paused():
-        t0 = time.perf_counter()
-        say("writing")
-        cells = sched.cells
-        # the X/Y acceleration the plan chose (optimize.methods.search_acceleration) is written
-        # as --amax would be: the file's own settings clamped to it, M201 before the first move
-        amax_w = sched.info.get("accel_chosen_mm_s2") or opts.amax_mm_s2
-        axis_a = effective_limits(profile, opts.vmax_mm_s, amax_w)[2]
-        clamp = replay.accel_clamp(axis_a)
-        result = write(program, path, sched, profile, mode=opts.mode, override=override,
-                       accel_mm_s2=writer_accel(path, profile, fw_limits, amax_w),
+    run.tol, run.seg_feats, run.tol_notes = tolerance_for(path, run.program, req)
+    run.sched = plan(path, profile, req, fw_limits, run.tol)
+    run.t_in = input_time_s(path, profile, req, fw_limits)
+    run.wall["plan"] = time.perf_counter() - t0
+
+
+def _write(run: _Run, say) -> None:
+    """Write the schedule into the file's lines and read the result back (verify)."""
+    path, profile, req, opts, sched = run.path, run.profile, run.req, run.opts, run.sched
+    t0 = time.perf_counter()
+    say("writing")
+    cells = sched.cells
+    # the X/Y acceleration the plan chose (optimize.methods.search_acceleration) is written
+    # as --amax would be: the file's own settings clamped to it, M201 before the first move
+    amax_w = sched.info.get("accel_chosen_mm_s2") or opts.amax_mm_s2
+    axis_a = effective_limits(profile, opts.vmax_mm_s, amax_w)[2]
+    clamp = run.replay.accel_clamp(axis_a)
+    run.result = write(run.program, path, sched, profile, mode=opts.mode,
+                       override=run.override,
+                       accel_mm_s2=writer_accel(path, profile, run.fw_limits, amax_w),
                        cells=cells, clamp=clamp,
                        feed_cap_mm_s=planning_path(path, req.speed, profile,
                                                    req.vmax_mm_s).feed_mm_s,
                        run_settings=run_settings(profile, opts, req),
                        settings=None if cells is None and not firmware.raises_configured(profile)
-                       else replay.accel_settings(clamp))
-        wall["write"] = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        fw = profile.firmware
-        out_program = verify(program, result, flavour=fw.flavour,
-                             g91_relative_e=fw.g91_relative_e, name=str(out_path))
-        wall["verify"] = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        # the printer as its owner configured it runs both files (the output sets the plan's
-        # limits itself, gcode.firmware_lines._PlanLimits); the input also at the profile's values,
-        # to tell the saving from raised limits apart from the plan's
-        configured = firmware.as_configured(profile)
-        say("timing both files on the firmware model")
-        fw_in = estimate_time_s(program, configured,
-                                replay=file_replay if configured is profile else None)
-        out_replay = firmware.Replay(out_program, configured)
-        fw_out = estimate_time_s(out_program, configured, replay=out_replay)
-        fw_in_raised = (fw_in if configured is profile
-                        else estimate_time_s(program, profile, replay=file_replay))
-        # ... and at the plan's accelerations over the file's own (--accel plan)
-        fw_in_plan = (fw_in_raised if override is None
-                      else estimate_time_s(program, profile, replay=replay))
-        wall["firmware"] = time.perf_counter() - t0
-    executed = None
-    if sched.method != "kinematic":
-        t0 = time.perf_counter()
-        say("executing the output on the firmware model and plant")
-        executed = execute_check(out_program, configured, req.tolerance_mm, out_replay)
-        wall["execute"] = time.perf_counter() - t0
+                       else run.replay.accel_settings(clamp))
+    run.wall["write"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    fw = profile.firmware
+    run.out_program = verify(run.program, run.result, flavour=fw.flavour,
+                             g91_relative_e=fw.g91_relative_e, name=str(run.out_path))
+    run.wall["verify"] = time.perf_counter() - t0
+
+
+def _time_both(run: _Run, say) -> None:
+    """Time the input and the output on the firmware model."""
+    profile, program = run.profile, run.program
+    t0 = time.perf_counter()
+    # the printer as its owner configured it runs both files (the output sets the plan's
+    # limits itself, gcode.firmware_lines._PlanLimits); the input also at the profile's values,
+    # to tell the saving from raised limits apart from the plan's
+    configured = run.configured = firmware.as_configured(profile)
+    say("timing both files on the firmware model")
+    run.fw_in = estimate_time_s(program, configured,
+                                replay=run.file_replay if configured is profile else None)
+    run.out_replay = firmware.Replay(run.out_program, configured)
+    run.fw_out = estimate_time_s(run.out_program, configured, replay=run.out_replay)
+    run.fw_in_raised = (run.fw_in if configured is profile
+                        else estimate_time_s(program, profile, replay=run.file_replay))
+    # ... and at the plan's accelerations over the file's own (--accel plan)
+    run.fw_in_plan = (run.fw_in_raised if run.override is None
+                      else estimate_time_s(program, profile, replay=run.replay))
+    run.wall["firmware"] = time.perf_counter() - t0
+
+
+def _save(run: _Run) -> None:
+    """Plot if asked; write the output (or keep the input where ours runs slower)."""
+    opts, sched, in_path, out_path = run.opts, run.sched, run.in_path, run.out_path
     if opts.plot:
-        with output_path(targets["--plot"]) as tmp:
-            plot_run(path, sched, tmp, title=f"{in_path.name}: {sched.method} on {profile.name}",
-                     tolerance_mm=req.tolerance_mm,
+        with output_path(run.targets["--plot"]) as tmp:
+            plot_run(run.path, sched, tmp,
+                     title=f"{in_path.name}: {sched.method} on {run.profile.name}",
+                     tolerance_mm=run.req.tolerance_mm,
                      predicted_error_mm=sched.info.get("predicted_bound_mm"))
     # an output that runs slower than the input is not written unless asked (--allow-slower):
     # in place the file stays as it was, with -o the input goes there unchanged
-    keep = fw_out > fw_in * (1.0 + SLOWER_TOLERANCE) and not opts.allow_slower
+    run.keep = run.fw_out > run.fw_in * (1.0 + SLOWER_TOLERANCE) and not opts.allow_slower
     # the time lines the slicer wrote (;TIME:, M73, estimated printing time) carry the time the
     # summary reports: the firmware model's of this very file, not the plan's
-    result = dataclasses.replace(result, data=rescale_times(result.data, sched.duration_s, fw_out))
+    run.result = dataclasses.replace(run.result, data=rescale_times(run.result.data,
+                                                                    sched.duration_s, run.fw_out))
     if not opts.dry_run:
         t0 = time.perf_counter()
-        if keep:
+        if run.keep:
             if out_path.resolve() != in_path.resolve():
-                write_bytes(targets["-o"], in_path.read_bytes())
+                write_bytes(run.targets["-o"], in_path.read_bytes())
         else:
             if opts.trajectory:  # first: the G-code is the last file replaced
-                with output_file(targets["--trajectory"]) as fh:
-                    write_trajectory_csv(fh, sched, path)
-            write_bytes(targets["-o"], result.data)
-        wall["save"] = time.perf_counter() - t0
-    info = sched.info
+                with output_file(run.targets["--trajectory"]) as fh:
+                    write_trajectory_csv(fh, sched, run.path)
+            write_bytes(run.targets["-o"], run.result.data)
+        run.wall["save"] = time.perf_counter() - t0
+
+
+def _report(run: _Run) -> Report:
+    """The run's report: times, counts and the optimizer's figures."""
+    opts, req, sched, result, program = run.opts, run.req, run.sched, run.result, run.program
+    profile, keep, info = run.profile, run.keep, run.sched.info
+    fw_in, fw_out = run.fw_in, run.fw_out
     rep = Report(
-        input=str(in_path), output=None if opts.dry_run else str(out_path),
+        input=str(run.in_path), output=None if opts.dry_run else str(run.out_path),
         machine=profile.name, method=sched.method, mode=opts.mode, speed=req.speed,
         accel=opts.accel,
         tolerance_mm=req.tolerance_mm, stringency=req.stringency,
@@ -339,16 +415,17 @@ def optimize_file(in_path, out_path, profile, opts: Options, progress=None) -> R
         lines_written=len(program.lines) if keep else result.lines_written,
         input_time_s=fw_in, output_time_s=fw_in if keep else fw_out,
         plan_time_s=sched.duration_s,
-        time_source=f"{fw.flavour} firmware model"
-                    + (" as configured" if configured is not profile else ""),
+        time_source=f"{profile.firmware.flavour} firmware model"
+                    + (" as configured" if run.configured is not profile else ""),
         dry_run=opts.dry_run,
         predicted_max_contour_error_mm=info.get("predicted_max_contour_error_mm"),
         predicted_p95_contour_error_mm=info.get("predicted_p95_contour_error_mm"),
-        stage_wall_s={k: round(v, 4) for k, v in wall.items()},
-        extra={"input_time_same_limits_s": t_in, "input_time_profile_limits_s": fw_in_raised,
-               "input_time_plan_accel_s": fw_in_plan,
+        stage_wall_s={k: round(v, 4) for k, v in run.wall.items()},
+        extra={"input_time_same_limits_s": run.t_in,
+               "input_time_profile_limits_s": run.fw_in_raised,
+               "input_time_plan_accel_s": run.fw_in_plan,
                "accel_lines": result.accel_lines, "accel_override_lines": result.override_lines,
-               **({"executed": executed} if executed is not None else {}),
+               **({"executed": run.executed} if run.executed is not None else {}),
                **{k: info[k] for k in ("optimizer", "window_status", "fallback_windows",
                                         "relaxed_windows", "relaxed_samples", "rounds",
                                         "whole_file_checks", "samples_evaluated",
@@ -359,9 +436,17 @@ def optimize_file(in_path, out_path, profile, opts: Options, progress=None) -> R
                                     for a, t in info["accel_search"]]}
                   if info.get("accel_search") else {})})
     rep.extra["time_split_s"] = time_split(
-        fw_in=fw_in, fw_in_raised=fw_in_plan, t_in=t_in, fw_out=fw_in if keep else fw_out,
-        plan_s=sched.duration_s, kinematic_s=_kinematic_time(sched, path, profile, req,
-                                                             fw_limits), keep=keep)
+        fw_in=fw_in, fw_in_raised=run.fw_in_plan, t_in=run.t_in,
+        fw_out=fw_in if keep else fw_out, plan_s=sched.duration_s,
+        kinematic_s=_kinematic_time(sched, run.path, profile, req, run.fw_limits), keep=keep)
+    return rep
+
+
+def _notes(run: _Run, rep: Report) -> None:
+    """What the user should know about the run, as the report's notes (and the features)."""
+    opts, sched, result, program = run.opts, run.sched, run.result, run.program
+    profile, keep, info, override = run.profile, run.keep, run.sched.info, run.override
+    fw_in, fw_out = run.fw_in, run.fw_out
     if info.get("accel_chosen_mm_s2") and not keep:
         tried = info["accel_search"]
         rep.notes.append(
@@ -376,11 +461,11 @@ def optimize_file(in_path, out_path, profile, opts: Options, progress=None) -> R
         conf = ", ".join(f"{k} {v:g}" for k, v in (
             [("accel", fw_c.configured_accel_mm_s2)] if fw_c.configured_accel_mm_s2 else []) + (
             [(f"max {a}", fw_c.configured_max_accel_mm_s2[a]) for a in "xy"]
-            if fw_c.configured_max_accel_mm_s2 and replay.firmware.axis_max_accel else []))
+            if fw_c.configured_max_accel_mm_s2 and run.replay.firmware.axis_max_accel else []))
         rep.notes.append(f"the file sets {' and '.join(result.plan_limit_lines)} before its first "
                          f"move (the plan's limits; {profile.name}'s firmware is configured to "
                          f"{conf} mm/s²) and the configured values again after its last; the "
-                         f"input alone would take {fw_in_raised:.1f} s at those limits, "
+                         f"input alone would take {run.fw_in_raised:.1f} s at those limits, "
                          f"{fw_in:.1f} s as configured")
     if override is not None and not keep:
         kinds = sorted({name for _, name in override.sources})
@@ -389,20 +474,20 @@ def optimize_file(in_path, out_path, profile, opts: Options, progress=None) -> R
             f"--accel plan: {n_src} line{'s' if n_src != 1 else ''} of the file set "
             f"accelerations below the plan's ({', '.join(kinds)}); after each (after the homing "
             f"that follows it, if any) the file sets the plan's again "
-            f"({replay.firmware.describe_accels(override)}; {result.override_lines} lines, "
+            f"({run.replay.firmware.describe_accels(override)}; {result.override_lines} lines, "
             f"junction settings and retraction accelerations kept), and the file's own after "
             f"the last "
-            f"move; the input alone would take {fw_in_plan:.1f} s at the plan's accelerations; "
-            "--accel file keeps the file's")
+            f"move; the input alone would take {run.fw_in_plan:.1f} s at the plan's "
+            "accelerations; --accel file keeps the file's")
         tower = next((i for i, ln in enumerate(program.lines)
                       if ln.lstrip()[:12].upper() == b"TUNING_TOWER"), None)
         if tower is not None:
             # a calibration print measures something at the accelerations it was sliced with
             # (the Cura square tower: pressure advance at ACCEL=500)
             rep.notes.append(
-                f"{in_path}:{tower + 1}: the file runs TUNING_TOWER, a calibration print, and its "
-                "accelerations were overridden; what it calibrates (e.g. pressure advance) depends "
-                "on them: run it with --accel file to calibrate at the sliced ones")
+                f"{run.in_path}:{tower + 1}: the file runs TUNING_TOWER, a calibration print, and "
+                "its accelerations were overridden; what it calibrates (e.g. pressure advance) "
+                "depends on them: run it with --accel file to calibrate at the sliced ones")
     rate = 1.0 / profile.ts_s
     if opts.mode == "sampled" and rate > profile.firmware.max_lines_per_s and not keep:
         rep.notes.append(
@@ -429,13 +514,12 @@ def optimize_file(in_path, out_path, profile, opts: Options, progress=None) -> R
     elif fw_out > fw_in:
         rep.notes.append("the firmware runs the original faster than our output: the slicer's "
                          "feeds exceed the profile's limits somewhere (see --vmax)")
-    feats_rep = feature_breakdown(path, sched, seg_feats, tol, profile.ts_s)
+    feats_rep = feature_breakdown(run.path, sched, run.seg_feats, run.tol, profile.ts_s)
     if feats_rep:
         rep.extra["features"] = feats_rep
         rep.extra["feature_tolerance_mm"] = {k: (None if v == float("inf") else v) for k, v in
-                                             req.feature_tolerance_mm.items()}
-    rep.notes.extend(tol_notes)
-    return rep
+                                             run.req.feature_tolerance_mm.items()}
+    rep.notes.extend(run.tol_notes)
 
 
 def _kinematic_time(sched, path, profile, req: PlanRequest, fw_limits) -> float:
