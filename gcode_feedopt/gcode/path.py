@@ -163,10 +163,58 @@ def build_path(program: Program, *, e_feed_cap_mm_s=25.0, e_accel_mm_s2=5000.0,
         e_scale: one or (M,) factor on the E of E-only moves for their duration (Klipper's
             M221 scales E; MoveLimits.extrude_factor).
     """
-    e_caps = np.broadcast_to(np.asarray(e_feed_cap_mm_s, float), (len(program.moves),))
-    e_accs = np.broadcast_to(np.asarray(e_accel_mm_s2, float), (len(program.moves),))
-    e_scales = np.broadcast_to(np.asarray(e_scale, float), (len(program.moves),))
     moves = program.moves
+    seg_moves, stop_after, dwell_after, dwell_before = _segments_and_stops(
+        program, e_feed_cap_mm_s, e_accel_mm_s2, e_scale)
+    n = len(seg_moves)
+    seg = [moves[mi] for mi in seg_moves]
+    # one list per field, then one array each (row-by-row assignment costs more than the rest
+    # of the function)
+    start = np.array([mv.start_mm for mv in seg], dtype=float).reshape(n, 3)
+    end = np.array([mv.end_mm for mv in seg], dtype=float).reshape(n, 3)
+    kind = np.zeros(n, dtype=np.int8)
+    center = np.full((n, 2), np.nan)
+    radius = np.zeros(n)
+    theta0 = np.zeros(n)
+    sweep = np.zeros(n)
+    length = np.array([mv.xyz_length_mm for mv in seg], dtype=float)
+    de = np.array([mv.de_mm for mv in seg], dtype=float)
+    mkind = np.array([KIND_CODES[mv.kind] for mv in seg], dtype=np.int8)
+    layer = np.array([mv.layer for mv in seg], dtype=np.int32)
+    feed = np.array([mv.feed_mm_s for mv in seg], dtype=float)
+    fixed = np.array([mv.fixed for mv in seg], dtype=bool)
+    for k, mv in enumerate(seg):
+        if mv.arc is not None:
+            kind[k] = SEG_ARC_CW if mv.arc.cw else SEG_ARC_CCW
+            center[k] = mv.arc.center_mm
+            radius[k] = mv.arc.radius_mm
+            theta0[k] = np.arctan2(mv.start_mm[1] - mv.arc.center_mm[1],
+                                   mv.start_mm[0] - mv.arc.center_mm[0])
+            sweep[k] = mv.arc.sweep_rad
+    s0 = np.concatenate([[0.0], np.cumsum(length)])
+    stop = np.zeros(n, dtype=bool)
+    dwell = np.zeros(n)
+    for k in stop_after:
+        stop[k] = True
+        dwell[k] = dwell_after.get(k, 0.0)
+    if n:
+        stop[-1] = True
+    return Path(start_mm=start, end_mm=end, kind=kind, center_mm=center, radius_mm=radius,
+                theta0_rad=theta0, sweep_rad=sweep, length_mm=length, s0_mm=s0, de_mm=de,
+                move_kind=mkind, layer=layer, move_index=np.asarray(seg_moves, dtype=np.int64),
+                feed_mm_s=feed, fixed=fixed, stop_after=stop, dwell_after_s=dwell,
+                dwell_before_s=float(dwell_before))
+
+
+def _segments_and_stops(program: Program, e_feed_cap_mm_s, e_accel_mm_s2, e_scale):
+    """(indices of the moves that travel in XYZ, {segment: stop after it}, {segment: dwell
+    after it, s}, dwell before the first segment, s): an E-only move is a stop lasting what
+    the firmware gives it (a rest-to-rest trapezoid at its caps), an event with a stop (a
+    dwell, a homing) a stop of its dwell (build_path's arguments)."""
+    moves = program.moves
+    e_caps = np.broadcast_to(np.asarray(e_feed_cap_mm_s, float), (len(moves),))
+    e_accs = np.broadcast_to(np.asarray(e_accel_mm_s2, float), (len(moves),))
+    e_scales = np.broadcast_to(np.asarray(e_scale, float), (len(moves),))
     seg_moves = []
     dwell_after: dict[int, float] = {}
     stop_after: set[int] = set()
@@ -206,41 +254,4 @@ def build_path(program: Program, *, e_feed_cap_mm_s=25.0, e_accel_mm_s2=5000.0,
         if ev.stop:
             add_stop(ev.dwell_s)
         ev = next(ev_iter, None)
-    n = len(seg_moves)
-    seg = [moves[mi] for mi in seg_moves]
-    # one list per field, then one array each (row-by-row assignment costs more than the rest
-    # of the function)
-    start = np.array([mv.start_mm for mv in seg], dtype=float).reshape(n, 3)
-    end = np.array([mv.end_mm for mv in seg], dtype=float).reshape(n, 3)
-    kind = np.zeros(n, dtype=np.int8)
-    center = np.full((n, 2), np.nan)
-    radius = np.zeros(n)
-    theta0 = np.zeros(n)
-    sweep = np.zeros(n)
-    length = np.array([mv.xyz_length_mm for mv in seg], dtype=float)
-    de = np.array([mv.de_mm for mv in seg], dtype=float)
-    mkind = np.array([KIND_CODES[mv.kind] for mv in seg], dtype=np.int8)
-    layer = np.array([mv.layer for mv in seg], dtype=np.int32)
-    feed = np.array([mv.feed_mm_s for mv in seg], dtype=float)
-    fixed = np.array([mv.fixed for mv in seg], dtype=bool)
-    for k, mv in enumerate(seg):
-        if mv.arc is not None:
-            kind[k] = SEG_ARC_CW if mv.arc.cw else SEG_ARC_CCW
-            center[k] = mv.arc.center_mm
-            radius[k] = mv.arc.radius_mm
-            theta0[k] = np.arctan2(mv.start_mm[1] - mv.arc.center_mm[1],
-                                   mv.start_mm[0] - mv.arc.center_mm[0])
-            sweep[k] = mv.arc.sweep_rad
-    s0 = np.concatenate([[0.0], np.cumsum(length)])
-    stop = np.zeros(n, dtype=bool)
-    dwell = np.zeros(n)
-    for k in stop_after:
-        stop[k] = True
-        dwell[k] = dwell_after.get(k, 0.0)
-    if n:
-        stop[-1] = True
-    return Path(start_mm=start, end_mm=end, kind=kind, center_mm=center, radius_mm=radius,
-                theta0_rad=theta0, sweep_rad=sweep, length_mm=length, s0_mm=s0, de_mm=de,
-                move_kind=mkind, layer=layer, move_index=np.asarray(seg_moves, dtype=np.int64),
-                feed_mm_s=feed, fixed=fixed, stop_after=stop, dwell_after_s=dwell,
-                dwell_before_s=float(dwell_before))
+    return seg_moves, stop_after, dwell_after, dwell_before
