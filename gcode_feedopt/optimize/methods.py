@@ -345,7 +345,11 @@ def plan_mpc(path, profile, predictor, *, method, tolerance_mm, stringency, vmax
              online: bool = False, fw_limits=None, free: bool = True, screen: bool = True,
              workers: int | None = None, use_slicer_feed: bool = False):
     """Receding-window plan of the whole path with ``predictor``; with ``plant`` and
-    ``online`` the plant runs each committed window and the predictor observes it."""
+    ``online`` the plant runs each committed window and the predictor observes it.
+
+    Long for a reason: the serial and the parallel runs build their planners from the same
+    locals (limits, z, settings, the free plan) and the online run's commit hook closes over
+    the planner; the pieces' loop and the result's info are their own functions."""
     vmax, axis_v, axis_a = effective_limits(profile, vmax_mm_s, amax_mm_s2)
     ts = profile.ts_s
     z = float(norm.ppf(stringency))
@@ -410,21 +414,10 @@ def plan_mpc(path, profile, predictor, *, method, tolerance_mm, stringency, vmax
         pred_xy_override = None
         planner.start(0.0)
         planner.hold(int(round(path.dwell_before_s / ts)))
-    for s_end, dwell_s, z_move in (pieces if res is None else ()):
-        if z_move:
-            s_a = planner.s_hist[-1]
-            mid = 0.5 * (s_a + s_end)
-            t = np.abs(path.tangent(np.array([mid]))[0])
-            vz = min([vmax] + [axis_v[a] / t[i] for i, a in enumerate("xyz") if t[i] > 1e-12])
-            az = min([axis_a[a] / t[i] for i, a in enumerate("xyz") if t[i] > 1e-12])
-            planner._commit(_trapezoid_samples(s_a, s_end, vz, az, ts))
-            planner._prev = None
-        else:
-            planner.run_piece(s_end)
-        planner.hold(int(round(dwell_s / ts)))
     if res is None:
+        _run_pieces(planner, pieces, path, vmax, axis_v, axis_a, ts)
         res = planner.result()
-    info = dict(res.info)
+    info = _mpc_info(res, predictor, pred_xy_override)
     info["compute_s"] = time.perf_counter() - t0
     info["plan_time_s"] = (res.s_mm.size - 1) * ts
     info["stringency"] = stringency
@@ -440,15 +433,40 @@ def plan_mpc(path, profile, predictor, *, method, tolerance_mm, stringency, vmax
         bnd = np.abs(mu) + z * sd
         info["predicted_max_contour_error_mm"] = float(np.max(bnd)) if bnd.size else 0.0
         info["predicted_p95_contour_error_mm"] = float(np.quantile(np.abs(mu), 0.95)) if mu.size else 0.0
+    info["vmax_mm_s"] = vmax
+    info["amax_mm_s2"] = min(axis_a["x"], axis_a["y"])
+    return Schedule(ts_s=ts, s_mm=res.s_mm, method=method, info=info)
+
+
+def _run_pieces(planner, pieces, path, vmax, axis_v: dict, axis_a: dict, ts: float) -> None:
+    """The window planner over the stretches between exact stops, in order: a stretch that
+    moves Z as a rest-to-rest trapezoid at the axes' limits along its direction, the others
+    window by window; then each stop's dwell."""
+    for s_end, dwell_s, z_move in pieces:
+        if z_move:
+            s_a = planner.s_hist[-1]
+            mid = 0.5 * (s_a + s_end)
+            t = np.abs(path.tangent(np.array([mid]))[0])
+            vz = min([vmax] + [axis_v[a] / t[i] for i, a in enumerate("xyz") if t[i] > 1e-12])
+            az = min([axis_a[a] / t[i] for i, a in enumerate("xyz") if t[i] > 1e-12])
+            planner._commit(_trapezoid_samples(s_a, s_end, vz, az, ts))
+            planner._prev = None
+        else:
+            planner.run_piece(s_end)
+        planner.hold(int(round(dwell_s / ts)))
+
+
+def _mpc_info(res, predictor, pred_xy_override) -> dict:
+    """The window plan's info with the twin's predicted X/Y (the workers' when they planned,
+    else the predictor's own) where it covers the plan."""
+    info = dict(res.info)
     pred_xy = getattr(predictor, "pred_mean", None)
     if pred_xy_override is not None and pred_xy_override.shape[0] == res.s_mm.size:
         info["_predicted_xy_mm"] = pred_xy_override
     elif pred_xy is not None and len(pred_xy[0]) == res.s_mm.size:
         info["_predicted_xy_mm"] = np.column_stack([np.asarray(pred_xy[0]), np.asarray(pred_xy[1])])
     info.pop("_pred_xy_mm", None)
-    info["vmax_mm_s"] = vmax
-    info["amax_mm_s2"] = min(axis_a["x"], axis_a["y"])
-    return Schedule(ts_s=ts, s_mm=res.s_mm, method=method, info=info)
+    return info
 
 
 def optimizer_of(opts: dict, online: bool) -> str:

@@ -435,7 +435,12 @@ class MpcPlanner:
         self.n = self.st.n_window + nb + self.st.n_hold
 
     def run_piece(self, s_max: float, max_windows: int | None = None):
-        """Plan from the current (resting) position to s_max, ending at rest there."""
+        """Plan from the current (resting) position to s_max, ending at rest there.
+
+        Long for a reason: one window's chain of decisions in the order docs/optimizer.md
+        states it (the free plan, the LP, the fallback, the elastic LP, held, proceeding along
+        F after a stall), with the state it carries from window to window (the previous
+        horizon, the stall count)."""
         nw = self.st.n_window
         stall = 0
         windows = 0

@@ -85,6 +85,9 @@ class AxisTwin:
         tests/twin/test_calibration.py). We use βᵀΣ_ψβ = ||Σ_lag c_lag Y_{t−lag}||² with the
         signed weights of each lag (see features.factor_series); the small tr(Σ_βΣ_ψ) term
         keeps the diagonal approximation.
+
+        Long for a reason: the reference recursion, sample by sample as the paper states it
+        (Eqs. 5, 12–14); the vectorized predictors (optimize.predictors) are tested against it.
         """
         x_cmd = np.asarray(x_cmd, float)
         ref = float(x_cmd[0])
