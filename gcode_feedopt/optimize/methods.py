@@ -515,7 +515,7 @@ def plan_request(req: PlanRequest, path, profile, tolerance_mm=None, *, plant=No
             on (online). Default: the profile's nominal plant (the FRF set's mean response).
         online: learn from the plant's measurements window by window (pb never learns).
         settings: MpcSettings (window length, horizon, solver, ...) of the window optimizer.
-        fw_limits: vm.firmware.move_limits of the file.
+        fw_limits: the file's firmware.MoveLimits (firmware.Replay.move_limits).
         opts: ``optimizer`` (``slowdown`` offline by default, ``window`` online and on
             request), ``seed`` (the default plant), and the window optimizer's ``free``,
             ``screen``, ``workers``.

@@ -4,7 +4,7 @@ The options leave most values to the profile (no ``--tolerance``: the profile's 
 ``--stringency``: its η; ``--feature-tolerance`` over its per-feature table); a
 :class:`PlanRequest` holds the values in force, so every stage of a run (pipeline.py: the
 plan, the input's time, the report, the ident line; cli/compare.py) reads the same ones.
-The firmware's limits of the file (vm.firmware.move_limits) stay a separate argument: they
+The firmware's limits of the file (firmware.Replay.move_limits) stay a separate argument: they
 come from the file's own lines, not from the options.
 """
 
