@@ -6,6 +6,7 @@
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import pathlib
 import time
 from dataclasses import dataclass
@@ -13,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import AlreadyProcessedError, FeedOptError, GCodeError, UsageError
+from .gcode.features import FEATURES, present, segment_features, segment_tolerance
 from .gcode.metadata import rescale_times
 from .gcode.path import build_path
 from .gcode.reader import gc_paused, read_file
@@ -65,7 +67,6 @@ def tolerance_for(path, program, req: PlanRequest):
     """The tolerance the planner gets: the scalar E_max when no feature has its own (the
     single-tolerance path, unchanged), else (N,) one per segment from each move's feature
     (``req``: plan.request.PlanRequest). Returns (tolerance, per-segment features, notes)."""
-    from .gcode.features import present, segment_features, segment_tolerance
     scalar = req.tolerance_mm
     table = req.feature_tolerance_mm
     feats = segment_features(path, program)
@@ -114,7 +115,7 @@ def plan(path, profile, req: PlanRequest, fw_limits=None, tolerance=None):
         return plan_kinematic(path, profile, use_slicer_feed=req.use_slicer_feed,
                               vmax_mm_s=req.plan_vmax_mm_s, amax_mm_s2=req.amax_mm_s2,
                               fw_limits=fw_limits)
-    try:
+    try:  # on use: a build without the optimizer's solvers still plans kinematic
         from .optimize.methods import plan_request
     except ImportError:
         raise FeedOptError(f"method '{req.method}' is not available in this build; use "
@@ -182,8 +183,6 @@ def run_settings(profile, opts: Options, req: PlanRequest | None = None) -> str:
     machine (and a digest of its profile file), method, speed policy, tolerance, stringency,
     the limits given and the mode. ``batch`` compares them to re-process what changed.
     ``req``: the run's PlanRequest (made from ``opts`` when not given)."""
-    import hashlib
-
     req = req or PlanRequest.from_options(profile, opts)
 
     digest = "builtin"
@@ -591,5 +590,4 @@ def feature_breakdown(path, sched, seg_feats, tolerance, ts_s: float) -> dict:
 
 
 def _feature_order(f: str) -> int:
-    from .gcode.features import FEATURES
     return FEATURES.index(f) if f in FEATURES else len(FEATURES)
