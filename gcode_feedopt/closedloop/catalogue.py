@@ -1,0 +1,371 @@
+"""The diagnosis's catalogue: each kind's candidate on one axis, its parameter scanned on the
+fit part against the model so far (``closedloop.diagnose``'s module docstring lists the kinds
+and their forms; ``diagnose_arrays`` tests and names them).
+
+Each kind is one function of a ``_Scorer`` (how a regressor or a prediction scores against the
+model so far) returning ``(kind, form, params, model, n_tried, q)``: the fitted model, the
+number of parameter values tried (the Bonferroni count of the fit-part test) and the degrees
+of freedom of its χ² test.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+from scipy import stats
+
+from ..twin.extensions import integral_sign, relax_sign
+from ..vm import effects as fx
+from ..vm.plant import respond
+
+if TYPE_CHECKING:  # the axis and model types are diagnose's; no import at run time
+    from .diagnose import _Axis, _Model
+
+#: Friction relaxation time constants scanned, s (0: the lag vanishes as the axis stops).
+FRICTION_TAU_S = (0.0, 0.03, 0.1, 0.2, 0.3, 0.5, 1e6)
+#: Integral time constants K_p/K_i scanned for a servo's friction (form ``integral``), s.
+INTEGRAL_TAU_S = tuple(float(v) for v in np.geomspace(0.005, 0.4, 12))
+#: Level of the test the integral form must pass against the steady ones (``_candidates``).
+INTEGRAL_ALPHA = 0.01
+
+
+def _n_eff(r: np.ndarray) -> float:
+    """Effective number of independent samples of a coloured residual: N / (1 + 2 Σ ρ_k), the
+    sum over the initial positive sequence of its autocorrelation."""
+    n = r.size
+    if n < 4:
+        return float(max(n, 1))
+    x = r - r.mean()
+    f = np.fft.rfft(x, 2 * n)
+    ac = np.fft.irfft(f * np.conj(f))[:n]
+    if ac[0] <= 0:
+        return float(n)
+    rho = ac / ac[0]
+    s = 0.0
+    for k in range(1, min(n - 1, 2000)):
+        if rho[k] <= 0:
+            break
+        s += rho[k]
+    return float(max(n / (1.0 + 2.0 * s), 2.0))
+
+
+# ---------------------------------------------------------------------------------------------
+# the catalogue
+
+
+def _refine(evaluate, grid, best_p, best_v, *, rounds=3, points=11):
+    """Refine a scanned parameter around ``best_p`` (higher ``evaluate`` is better)."""
+    grid = np.asarray(grid, float)
+    i = int(np.argmin(np.abs(grid - best_p)))
+    lo, hi = grid[max(i - 1, 0)], grid[min(i + 1, grid.size - 1)]
+    for _ in range(rounds):
+        for p in np.linspace(lo, hi, points):
+            v = evaluate(p)
+            if v > best_v:
+                best_p, best_v = p, v
+        step = (hi - lo) / (points - 1)
+        lo, hi = best_p - step, best_p + step
+    return best_p, best_v
+
+
+def _scan(evaluate, grid, refine=True, coarse=None):
+    """(best parameter, best value, points tried) of ``evaluate`` over ``grid`` (then refined).
+    ``coarse``: a cheap stand-in ranking the grid (the fit of the effect alone on what the model
+    so far leaves); ``evaluate`` is then run on its best three points only."""
+    grid = np.asarray(grid, float)
+    if coarse is not None and grid.size > 3:
+        cv = np.array([coarse(p) for p in grid])
+        vals = {int(i): evaluate(grid[i]) for i in np.argsort(cv)[::-1][:3]}
+        i = max(vals, key=vals.get)
+        p, v = float(grid[i]), vals[i]
+    else:
+        vals = [evaluate(p) for p in grid]
+        i = int(np.argmax(vals))
+        p, v = float(grid[i]), vals[i]
+    n = grid.size
+    if refine and grid.size > 1:
+        p, v = _refine(evaluate, grid, p, v)
+        n += 33
+    return p, v, n
+
+
+class _Scorer:
+    """How a candidate regressor or prediction scores on axis A against ``base`` (the model so
+    far): the fit part's residual sum of squares, negated (higher is better).
+
+    Parameters are scanned against the twin's mean physics (no draw): the draw could trade
+    part of an effect for a machine inside the spread and bias its size toward none; the draw
+    enters the test (diagnose_arrays), which decides whether the effect is there. The
+    ``quick_*`` scores are least squares on the base's residual alone, for coarse scans."""
+
+    def __init__(self, A: _Axis, base: _Model):
+        self.A, self.base = A, base
+        self.cmd, self.ts, self.fit = A.cmd, A.ts, A.fit
+        self.pred, self.extra = base.pred, base.extra
+        # an effect inside the machine passes through its dynamics: the twin's mean response,
+        # the one the extended profile applies (twin.extensions)
+        self.hd = A.phys.mean
+        self.rfit = base.resid_mean[A.fit]
+
+    def with_extra(self, G) -> _Model:
+        return self.A.fit_model(self.pred, np.hstack([self.extra, G]))
+
+    def score_extra(self, G) -> float:
+        e = self.with_extra(G).resid_mean[self.fit]
+        return -float(e @ e)
+
+    def score_pred(self, p, G=None) -> float:
+        m = self.A.fit_model(p, self.extra if G is None else np.hstack([self.extra, G]))
+        e = m.resid_mean[self.fit]
+        return -float(e @ e)
+
+    def quick_extra(self, G) -> float:
+        Gf = G[self.fit]
+        w = np.linalg.lstsq(Gf, self.rfit, rcond=None)[0]
+        e = self.rfit - Gf @ w
+        return -float(e @ e)
+
+    def quick_pred(self, p) -> float:
+        e = self.rfit - (p - self.pred)[self.fit]
+        return -float(e @ e)
+
+
+def _candidates(A: _Axis, base: _Model, named_kinds, other: _Axis, base_other: _Model):
+    """[(kind, form, params, model, n_tried, q)] of every catalogue kind on axis A (delay,
+    gain and resonance_shift once per axis), each parameter scanned on the fit part against
+    ``base`` (the model so far)."""
+    S = _Scorer(A, base)
+    out = [c for c in (_periodic_time(S), _periodic_position(S), _backlash(S), _friction(S))
+           if c is not None]
+    if "delay" not in named_kinds:
+        out.append(_delay(S))
+    if "gain" not in named_kinds:
+        out.append(_gain(S))
+    if "resonance_shift" not in named_kinds:
+        out.append(_resonance_shift(S))
+    out.append(_cross_coupling(S, other))
+    return out
+
+
+def _periodic_time(S: _Scorer):
+    """A sinusoid in time, from the three largest spectral peaks of the fit-part residual."""
+    ts, fit = S.ts, S.fit
+    t = np.arange(S.cmd.size) * ts
+    rf = S.base.resid_mean[fit]
+    nf = rf.size
+    n_fft = 1 << int(np.ceil(np.log2(max(nf, 2) * 4)))
+    R = np.abs(np.fft.rfft((rf - rf.mean()) * np.hanning(nf), n_fft))
+    f = np.fft.rfftfreq(n_fft, ts)
+    band = (f >= 1.0) & (f <= 0.45 / ts)
+    df = f[1] - f[0]
+    peaks = []
+    Rb = np.where(band, R, 0.0)
+    for _ in range(3):
+        i = int(np.argmax(Rb))
+        if Rb[i] <= 0:
+            break
+        peaks.append(f[i])
+        Rb[max(i - 8, 0):i + 9] = 0.0
+
+    def sincos_t(fr):
+        return np.column_stack([np.sin(2 * np.pi * fr * t), np.cos(2 * np.pi * fr * t)])
+
+    best = None
+    tried = 0
+    for f0 in peaks:
+        fr, v, n = _scan(lambda fr: S.score_extra(sincos_t(fr)),
+                         np.linspace(f0 - 2 * df, f0 + 2 * df, 9))
+        tried += n
+        if best is None or v > best[1]:
+            best = (fr, v)
+    if best is None:
+        return None
+    fr = best[0]
+    m = S.with_extra(sincos_t(fr))
+    w = m.w_mean[-2:]
+    return ("periodic_time", "time", {"frequency_hz": float(fr),
+                                      "amplitude_mm": float(np.hypot(*w)),
+                                      "phase_rad": float(np.arctan2(w[1], w[0]))},
+            m, tried, 3)
+
+
+def _periodic_position(S: _Scorer):
+    """A sinusoid of the commanded position, at the output or through the dynamics."""
+    cmd, hd = S.cmd, S.hd
+
+    def sincos_x(lam):
+        return np.column_stack([np.sin(2 * np.pi * cmd / lam), np.cos(2 * np.pi * cmd / lam)])
+
+    def sincos_x_dyn(lam):
+        G = sincos_x(lam)
+        return np.column_stack([respond(G[:, 0], hd), respond(G[:, 1], hd)])
+
+    grid = np.geomspace(1.0, 60.0, 300)
+    lam, v_out, n = _scan(lambda l: S.score_extra(sincos_x(l)), grid,
+                          coarse=lambda l: S.quick_extra(sincos_x(l)))
+    lam_d, v_dyn, n2 = _scan(lambda l: S.score_extra(sincos_x_dyn(l)),
+                              np.geomspace(lam / 1.1, lam * 1.1, 41),
+                              coarse=lambda l: S.quick_extra(sincos_x_dyn(l)))
+    if v_dyn >= v_out:
+        form, G, lam = "dynamics", sincos_x_dyn(lam_d), lam_d
+    else:
+        form, G = "output", sincos_x(lam)
+    m = S.with_extra(G)
+    w = m.w_mean[-2:]
+    return ("periodic_position", form, {"wavelength_mm": float(lam),
+                                        "amplitude_mm": float(np.hypot(*w)),
+                                        "phase_rad": float(np.arctan2(w[1], w[0])),
+                                        "form": form},
+            m, n + n2, 3)
+
+
+def _backlash(S: _Scorer):
+    """A play of width b (unit weight: the width is the parameter) + a free offset."""
+    A, cmd, pred = S.A, S.cmd, S.pred
+    ones = np.ones((cmd.size, 1))
+
+    def bl_input(b):
+        return pred + respond(fx.play(cmd, b), A.phys.mean) - A.p0
+
+    def bl_output(b):
+        return pred + fx.play(A.p0, b) - A.p0
+
+    grid = np.geomspace(0.005, 0.5, 30)
+    best = None
+    tried = 0
+    for form, make in (("input", bl_input), ("output", bl_output)):
+        b, v, n = _scan(lambda b: S.score_pred(make(b), ones), grid,
+                        coarse=lambda b: S.quick_pred(make(b)))
+        tried += n
+        if best is None or v > best[2]:
+            best = (form, b, v, make)
+    form, b, _, make = best
+    m = A.fit_model(make(b), np.hstack([S.extra, ones]))
+    return ("backlash", form, {"magnitude_mm": float(b), "offset_mm": float(m.w_mean[-1]),
+                               "form": form}, m, tried, 2)
+
+
+def _friction(S: _Scorer):
+    """A Coulomb force; free weight = the quasi-static lag.
+
+    A Coulomb force opposes the motion: it dissipates, so the axis lags (weight > 0). A lead
+    is not friction: on a PID servo whose modal fit leaves a few µm of lead (tests/foreign,
+    seed 5) "friction −0.010 mm" was named on two of three clean logs, and an integrator's
+    transients at reversals came out as −0.003 to −0.033 mm (benchmarks/foreign_effects.py).
+    Only forms with a lag compete.
+
+    The same force as a loop with integral action (a servo) sees it: washed out in τ_i
+    (twin.extensions.integral_sign). Tried only on an axis whose modal fit has real poles,
+    which such a loop puts below its bandwidth (AxisPhysics.integral_action): a corexy's
+    friction (tests/foreign, seed 18) otherwise took this form and came out a tie with
+    backlash. It nests the steady forms (τ_i → ∞) and has τ_i to spare, so it must also beat
+    the best of them significantly: its gain in the fit part's squares, in units of its
+    residual variance per effective sample, above the χ²(1) quantile at 1 %
+    Bonferroni-divided over the τ_i tried."""
+    A, cmd, ts, fit, hd = S.A, S.cmd, S.ts, S.fit, S.hd
+    best = None
+    for tau in FRICTION_TAU_S:
+        s = relax_sign(cmd, ts, tau)
+        forms = [("output", s[:, None]), ("response", respond(s, hd)[:, None])]
+        if A.phys.force is not None:
+            forms.append(("force", respond(s, A.phys.force)[:, None]))
+        for form, G in forms:
+            m = S.with_extra(G)
+            if not m.w_mean[-1] > 0:
+                continue
+            e = m.resid_mean[fit]
+            v = -float(e @ e)
+            # τ is seen only where the axis rests after moving: the simplest (first) wins ties
+            if best is None or v > best[0] + 1e-9 * abs(best[0]):
+                best = (v, form, tau, m)
+    fh = A.phys.force if A.phys.force is not None else hd
+    bar = stats.chi2.ppf(1.0 - INTEGRAL_ALPHA / len(INTEGRAL_TAU_S), 1)
+    taus_i = INTEGRAL_TAU_S if A.phys.integral_action else ()
+    best_int = None
+    for tau_i in taus_i:
+        G = respond(integral_sign(cmd, ts, tau_i), fh)[:, None]
+        m = S.with_extra(G)
+        if not m.w_mean[-1] > 0:
+            continue
+        e = m.resid_mean[fit]
+        v = -float(e @ e)
+        if best_int is None or v > best_int[0]:
+            best_int = (v, "integral", tau_i, m)
+    if best_int is not None:
+        e = best_int[3].resid_mean[fit]
+        if best is None:
+            best = best_int
+        elif (best_int[0] - best[0]) * _n_eff(e) / float(e @ e) > bar:
+            best = best_int
+    if best is None:
+        return None
+    _, form, tau, m = best
+    key = "integral_s" if form == "integral" else "relax_s"
+    return ("friction", form, {"magnitude_mm": float(m.w_mean[-1]), key: float(tau),
+                               "form": form},
+            m, 3 * len(FRICTION_TAU_S) + len(taus_i), 2)
+
+
+def _delay(S: _Scorer):
+    """The prediction delayed (unit weight: the delay is the parameter)."""
+    pred, ts = S.pred, S.ts
+    grid = np.geomspace(2e-4, 0.05, 40)
+    d, v, n = _scan(lambda d: S.score_pred(fx.delay_signal(pred, d, ts)), grid,
+                    coarse=lambda d: S.quick_pred(fx.delay_signal(pred, d, ts)))
+    m = S.A.fit_model(fx.delay_signal(pred, d, ts), S.extra)
+    return ("delay", "command", {"seconds": float(d)}, m, n, 1)
+
+
+def _gain(S: _Scorer):
+    """A gain about the machine origin: a free weight on the prediction."""
+    m = S.with_extra(S.pred[:, None])
+    return ("gain", "command", {"scale": float(1.0 + m.w_mean[-1])}, m, 1, 1)
+
+
+def _resonance_shift(S: _Scorer):
+    """The dominant mode moved (unit weight: its frequency is the parameter). The rescaled
+    form's frequency is the peak of |H| (as the virtual machine moves it); the mass form's the
+    dominant mode's natural frequency (as benchA's labels state it)."""
+    A, cmd, ts, pred = S.A, S.cmd, S.ts, S.pred
+    f_mode = A.phys.mode_hz
+    f_peak = fx.dominant_mode_hz(A.phys.mean, ts)
+    forms = [("scale", lambda f1: fx.rescale_impulse_response(A.phys.mean, f1 / f_peak))]
+    if A.phys.shifted is not None:
+        forms.insert(0, ("mass", A.phys.shifted))
+    grid = f_mode * np.linspace(0.6, 1.5, 19)
+    best = None
+    tried = 0
+    for form, hfun in forms:
+        def p_of(f1, hfun=hfun):
+            return pred + respond(cmd, hfun(f1)) - A.p0
+        f1, v, n = _scan(lambda f1: S.score_pred(p_of(f1)), grid,
+                         coarse=lambda f1: S.quick_pred(p_of(f1)))
+        tried += n
+        if best is None or v > best[2]:
+            best = (form, f1, v, p_of)
+    form, f1, _, p_of = best
+    m = A.fit_model(p_of(f1), S.extra)
+    return ("resonance_shift", form, {"frequency_hz": float(f1), "form": form}, m, tried, 1)
+
+
+def _cross_coupling(S: _Scorer, other: _Axis):
+    """The other axis's motion: its predicted acceleration (its carriage's reaction, ringing
+    included), its commanded one (a motor force that follows the command, tests/foreign
+    cross_coupling_cmd), the predicted one twice through the dynamics (a corexy's belts) or
+    its position; the form that fits best."""
+    ts, hd = S.ts, S.hd
+    po = other.p0
+
+    def acc(p):
+        return np.gradient(np.gradient(p, ts), ts)
+
+    G_acc = respond(acc(po), hd)[:, None]
+    forms = {"acceleration": G_acc, "command": respond(acc(other.cmd), hd)[:, None],
+             "belt": respond(G_acc[:, 0], hd)[:, None], "position": (po - po[0])[:, None]}
+    score = {form: S.score_extra(G) for form, G in forms.items()}
+    form = max(forms, key=lambda f: score[f])     # ties: the first, in the order above
+    m = S.with_extra(forms[form])
+    name = "coefficient" if form == "position" else "mm_per_mm_s2"
+    params = {"from_axis": other.ax, name: float(m.w_mean[-1]), "form": form}
+    return ("cross_coupling", form, params, m, len(forms), 2)
