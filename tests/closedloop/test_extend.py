@@ -78,25 +78,14 @@ def test_diagnose_cli_writes_profile(tmp_path):
 def test_written_profile_predicts_what_diagnose_reported(tmp_path, bench_a, name):
     """Issue 19, point 4: the profile ``diagnose -o`` writes, loaded back from its YAML and run
     by ``predict --no-learn``, has the held-out RMS ``diagnose`` reported, within 10 %."""
-    import json
-
     from tests.conftest import INDEPENDENT_DIR
+    from tests.written_extension import diagnose_then_predict
 
     prof, _ = bench_a
     base = save_profile(prof, tmp_path / "benchA.yaml")
-    log = INDEPENDENT_DIR / "logs" / name
-    r = CliRunner().invoke(cli, ["diagnose", "-m", str(base), str(log), "--json",
-                                 str(tmp_path / "d.json"), "-o", str(tmp_path / "ext.yaml")])
-    assert r.exit_code == 0, r.output
-    d = json.loads((tmp_path / "d.json").read_text())
-    r = CliRunner().invoke(cli, ["predict", "-m", str(tmp_path / "ext.yaml"), str(log), "-o",
-                                 str(tmp_path / "p.csv"), "--no-learn"])
-    assert r.exit_code == 0, r.output
-    pred = np.loadtxt(tmp_path / "p.csv", delimiter=",", skiprows=1)
-    meas = np.loadtxt(log, delimiter=",", skiprows=1)
-    k = d["fit_samples"]
-    for i, ax in enumerate("xy"):
-        rms = float(np.sqrt(np.mean((meas[k:, 3 + i] - pred[k:, 1 + 2 * i]) ** 2)))
+    d, got = diagnose_then_predict(base, INDEPENDENT_DIR / "logs" / name, tmp_path)
+    for ax in "xy":
+        rms = got[ax]
         want = d["holdout_rms_mm"]["after"][ax]
         assert abs(rms - want) <= 0.1 * want, (ax, rms, want)
         # and the extension helps where the effect is

@@ -276,31 +276,20 @@ def test_a_written_extension_predicts_what_diagnose_reported(which, kind, source
     ``predict --no-learn``, has the held-out RMS ``diagnose`` reported, within 10 % (each
     term is computed in predict as in diagnose: from the other axis's command; through the
     force response, washed out in the fitted ``integral_s``)."""
-    from click.testing import CliRunner
-
-    from gcode_feedopt.cli import cli
     from gcode_feedopt.profile.io import save_profile
+
+    from ..written_extension import diagnose_then_predict
 
     out, labels, prof = dataset(which)
     e = next(e for e in labels["logs"] if e["effects"][0]["kind"] == kind
              and source in (None, e["effects"][0]["physics"].get("source")))
     log = out / "logs" / e["file"].split("/")[-1]
     base = save_profile(prof, tmp_path / "base.yaml")
-    r = CliRunner().invoke(cli, ["diagnose", "-m", str(base), str(log), "--json",
-                                 str(tmp_path / "d.json"), "-o", str(tmp_path / "ext.yaml")])
-    assert r.exit_code == 0, r.output
-    d = json.loads((tmp_path / "d.json").read_text())
+    d, got = diagnose_then_predict(base, log, tmp_path)
     named = [(g["kind"], g["params"]["form"]) for g in d["effects"]]
     assert named == [(kind, form)], named
-    r = CliRunner().invoke(cli, ["predict", "-m", str(tmp_path / "ext.yaml"), str(log), "-o",
-                                 str(tmp_path / "p.csv"), "--no-learn"])
-    assert r.exit_code == 0, r.output
-    pred = np.loadtxt(tmp_path / "p.csv", delimiter=",", skiprows=1)
-    meas = np.loadtxt(log, delimiter=",", skiprows=1)
-    k = d["fit_samples"]
     ax = e["effects"][0]["axis"]
-    i = "xy".index(ax)
-    rms = _rms(meas[k:, 3 + i] - pred[k:, 1 + 2 * i])
+    rms = got[ax]
     want = d["holdout_rms_mm"]["after"][ax]
     assert abs(rms - want) <= 0.1 * want, (rms, want)
     assert want < 0.5 * d["holdout_rms_mm"]["before"][ax]
