@@ -33,6 +33,7 @@ from ..plan.kinematic import (effective_limits, plan_kinematic, plan_trapezoids,
                               segment_plan)
 from ..twin.extensions import extra_variance_mm2, motion_offsets
 from ..twin.model import axis_noise_mm, axis_prior, learned_speed_noise_s, twin_impulse
+from ..twin.physics import ring_time_s
 from ..vm.metrics import evaluate
 from ..vm.plant import Plant
 from ..vm.trajectory import Trajectory
@@ -40,7 +41,7 @@ from .free import ContourRules, FreePlan
 from . import parallel
 from .mpc import OVERSHOOT_LAG_S, MpcPlanner, MpcResult, MpcSettings
 from .predictors import PlantPredictor, TwinPredictor
-from .slowdown import plan_slowdown
+from .slowdown import SlowdownSettings, plan_slowdown
 from .slowdown.evaluators import PlantEvaluator, TwinEvaluator
 
 METHODS = ("kinematic", "conservative", "pb", "dd", "pidd", "oracle")
@@ -293,6 +294,8 @@ def plan_offline(path, profile, req: PlanRequest, *, tolerance_mm, plant=None,
                                   offsets=motion_offsets(profile), **kw)
     if seg_tol is not None:
         evaluator.set_feature_tolerance(path, seg_tol)
+    # the plan must see the machine's ringing out (SlowdownSettings.seeing_out)
+    settings = (settings or SlowdownSettings()).seeing_out(ring_time_s(profile))
     res = plan_slowdown(path, limits, evaluator, ts_s=profile.ts_s, settings=settings)
 
     def plan_at(axis_a2):

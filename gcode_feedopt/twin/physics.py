@@ -91,6 +91,29 @@ def axis_impulse(profile, axis: str) -> _frf.ImpulseResponse:
     return _frf.impulse_response(freq, resp, profile.ts_s, n_taps, method=tw.coef_variance)
 
 
+#: the machine has stopped ringing once its impulse response's envelope is below this fraction
+#: of its peak
+RING_FRACTION = 0.01
+
+
+def ring_time_s(profile, axes=("x", "y")) -> float:
+    """How long the machine rings after a change of motion, s: the last time at which an axis's
+    impulse response — its mean or its spread's standard deviation, whichever is larger — is
+    above RING_FRACTION of its peak (at most the twin's memory, n_taps·Ts). Benchmarks built
+    from FRFs give 0.16–0.28 s (the built-in profiles, benchA); a corexy whose 26 Hz modes
+    have ζ 0.026 rings for 0.94 s (tests/foreign, seed 0)."""
+    longest = 0.0
+    for ax in axes:
+        if ax not in profile.axes or profile.axes[ax].frf is None:
+            continue
+        ir = axis_impulse(profile, ax)
+        env = np.maximum(np.abs(np.asarray(ir.mean, float)), np.sqrt(np.asarray(ir.var, float)))
+        above = np.nonzero(env > RING_FRACTION * env.max())[0]
+        if above.size:
+            longest = max(longest, float(above[-1] + 1) * profile.ts_s)
+    return longest
+
+
 def apply_effects(fits: AxisModal, effects, ts_s: float | None = None) -> AxisModal:
     """The fits with a diagnosis's linear extensions applied to every member (a delay, a gain
     about the origin, the dominant mode moved as a mass change moves it, or with form

@@ -1,0 +1,49 @@
+"""twin.physics beyond the impulse response itself: how long a machine rings."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import warnings
+
+import numpy as np
+import pytest
+
+from gcode_feedopt.profile import load_profile
+from gcode_feedopt.profile.builtin import modal_frf
+from gcode_feedopt.profile.schema import FRFSet, Mode
+from gcode_feedopt.twin.physics import RING_FRACTION, ring_time_s
+
+
+def _one_mode_profile(freq_hz, zeta):
+    """ender3pro with both axes measured as one mode (four FRFs scattered by 0.1 % in
+    frequency, 1–249 Hz in 0.5 Hz steps)."""
+    prof = load_profile("ender3pro")
+    f = np.arange(1.0, 249.5, 0.5)
+    resp = np.vstack([modal_frf(f, [Mode(freq_hz * (1 + 1e-3 * k), zeta, 1.0)])
+                      for k in (-1.5, -0.5, 0.5, 1.5)])
+    frf = FRFSet(freq_hz=f, response=resp, labels=tuple(f"m{k}" for k in range(4)))
+    axes = {ax: dataclasses.replace(prof.axes[ax], frf=frf) for ax in "xy"}
+    return dataclasses.replace(prof, axes=axes)
+
+
+@pytest.mark.parametrize("freq_hz, zeta", [(30.0, 0.03), (45.0, 0.06)])
+def test_ring_time_of_one_mode_is_its_envelopes_decay(freq_hz, zeta):
+    """One mode rings while e^(−ζωt) is above RING_FRACTION of where |h| peaks (a quarter
+    period in): ln(1/RING_FRACTION)/(ζω), give or take half a period."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        got = ring_time_s(_one_mode_profile(freq_hz, zeta))
+    w = 2 * math.pi * freq_hz
+    expected = math.log(1 / RING_FRACTION) / (zeta * w)
+    assert abs(got - expected) <= 0.5 / freq_hz + 0.004
+
+
+def test_the_built_in_machines_ring_for_less_than_the_slow_downs_defaults():
+    """The slow-down's defaults (0.3 s of history, 0.5 s of look-back) were measured on these;
+    `SlowdownSettings.seeing_out` leaves them as they are there."""
+    from gcode_feedopt.optimize.slowdown import SlowdownSettings
+
+    for name in ("ender3pro", "voron24"):
+        st = SlowdownSettings()
+        assert st.seeing_out(ring_time_s(load_profile(name))) == st
