@@ -22,7 +22,8 @@ then refined. A kind may have two forms, the one that fits better is taken (the 
   (modal model, form ``mass``), or the whole response rescaled in frequency (form ``scale``);
 - ``backlash`` (``magnitude_mm``, the total width of the play): the play acting on the command
   before the dynamics (form ``input``, a play between pulley and belt) or on the response (form
-  ``output``), plus a free offset (where the band sits at the start is unknown);
+  ``output``), plus a free offset (where the band sits at the start is unknown); on an axis with
+  integral action fitted with the twin's velocity lag error (``lag_s``, ``_lag_column``);
 - ``friction`` (``magnitude_mm``, the quasi-static lag): a Coulomb force −F·sign(v) whose lag
   relaxes with a time constant τ once the axis stops (τ scanned, 0 = at once), through the
   axis dynamics (form ``response``), the force path (form ``force``) or as a following error
@@ -219,6 +220,7 @@ class _Model:
     resid_mean: np.ndarray = None  # (K,) without it (the profile's mean prediction)
     n_hold: int = 0
     w_mean: np.ndarray = None  # (q,) weights of ``extra`` fitted without the draw
+    lag_s: float | None = None  # the twin's lag error fitted with them (``_lag_column``)
 
 
 class _Axis:
@@ -234,8 +236,9 @@ class _Axis:
         self.radius = math.sqrt(stats.chi2.ppf(DRAW_QUANTILE, r)) if r else 0.0
         # the draw's prior z ~ N(0, I) against white measurement noise σ²: MAP adds σ²‖z‖²
         self.prior = noise_floor_mm(meas - self.p0) ** 2
+        self.lag, self.lag_sd = _lag_column(self.p0, phys, ts_s)
 
-    def fit_model(self, pred, extra) -> _Model:
+    def fit_model(self, pred, extra, lag: bool = False) -> _Model:
         """Fit the draw z (bounded, with its prior) and the free weights on the fit rows.
 
         The prior z ~ N(0, I) enters as λ‖z‖² with λ the residual's variance per *effective*
@@ -244,30 +247,39 @@ class _Axis:
         soak up any effect that resembles a stiffer or softer machine (a friction lag looks
         like a longer rotor lag at constant speed); with it, the draw moves only as far as the
         evidence of the data outweighs its prior. λ from a first fit at the white-noise floor,
-        then one refit."""
+        then one refit. ``lag``: the mean fit also carries the twin's lag error
+        (``_lag_column``), with its prior."""
         X = np.hstack([self.B, extra]) if extra.size else self.B
         y = self.meas - pred
         nz = self.B.shape[1]
         if not X.shape[1]:
             return self._model(pred, extra, np.zeros(0), y, y, np.zeros(extra.shape[1]))
+        th = self._map(X, y, nz, self.radius)
+        resid = y - X @ th
+        # the effect's weights against the twin's mean physics (no draw): what the extended
+        # profile predicts with, and what is reported (module docstring, 4)
+        nl = self.lag.shape[1] if lag else 0
+        free = np.hstack([self.lag, extra]) if nl else extra
+        if free.size:
+            w = self._map(free, y, nl, math.inf)
+            resid_mean = y - free @ w
+        else:
+            w, resid_mean = np.zeros(0), y
+        m = self._model(pred, extra, th, resid, resid_mean, w[nl:])
+        m.lag_s = float(w[0] * self.lag_sd) if nl else None
+        return m
+
+    def _map(self, X, y, nz, radius):
+        """θ fitted on the fit rows, ‖θ[:nz]‖ ≤ radius with the prior θ[:nz] ~ N(0, I)."""
         Xf, yf = X[self.fit], y[self.fit]
         G, b = Xf.T @ Xf, Xf.T @ yf
-        th = _solve_bounded(G, b, nz, self.radius, self.prior)
+        th = _solve_bounded(G, b, nz, radius, self.prior)
         if nz:
             rf = yf - Xf @ th
             lam = float(rf @ rf) / rf.size * rf.size / _n_eff(rf)
             if lam > self.prior:
-                th = _solve_bounded(G, b, nz, self.radius, lam)
-        resid = y - X @ th
-        # the effect's weights against the twin's mean physics (no draw): what the extended
-        # profile predicts with, and what is reported (module docstring, 4)
-        if extra.size:
-            Ef = extra[self.fit]
-            w = _solve_bounded(Ef.T @ Ef, Ef.T @ yf, 0, 0.0)
-            resid_mean = y - extra @ w
-        else:
-            w, resid_mean = np.zeros(0), y
-        return self._model(pred, extra, th, resid, resid_mean, w)
+                th = _solve_bounded(G, b, nz, radius, lam)
+        return th
 
     def _model(self, pred, extra, th, resid, resid_mean, w_mean=None) -> _Model:
         n = resid.size
@@ -278,6 +290,22 @@ class _Axis:
     def ss(self, m: _Model, part) -> float:
         r = m.resid[part]
         return float(r @ r)
+
+
+def _lag_column(p0, phys: AxisPhysics, ts_s):
+    """((K, 1) or (K, 0), σ_τ): the twin's velocity lag error as a regressor, on an axis with
+    integral action only: −σ_τ·dx̂/dt (a lag τ = σ_τ·w adds −τ·v̂), prior w ~ N(0, 1).
+
+    Such a loop (a servo's PID) follows a ramp without a steady lag; its FRFs, none below their
+    first bin, leave the fitted response's lag (its centroid Σ t·h̄) free, and a lag error
+    τ·v looks like a backlash's b/2·sign(v) on steady motion. σ_τ = ‖tᵀL‖: the spread the
+    profile's own plant draw gives the centroid (tests/foreign servo_screw: the mean's error
+    was within 1 σ_τ on every axis)."""
+    if not phys.integral_action or not phys.factor.shape[1]:
+        return np.zeros((p0.size, 0)), 0.0
+    t = np.arange(phys.mean.size) * ts_s
+    sd = float(np.linalg.norm(t @ phys.factor))
+    return -np.gradient(p0, ts_s)[:, None] * sd, sd
 
 
 # ---------------------------------------------------------------------------------------------
@@ -489,7 +517,8 @@ def _absorb_mode(a: _Axis, plain: _Model, named_kinds=()) -> _Model:
         return plain
 
     def moved(f1):
-        return a.fit_model(plain.pred + respond(a.cmd, a.phys.shifted(f1)) - a.p0, plain.extra)
+        return a.fit_model(plain.pred + respond(a.cmd, a.phys.shifted(f1)) - a.p0, plain.extra,
+                           plain.lag_s is not None)
 
     def score(f1):
         return -a.ss(moved(f1), a.fit)
@@ -537,7 +566,8 @@ def _ring_bar(a: _Axis, other: _Axis, bar: _Model, f_hz: float) -> _Model | None
                 cols.append(g / s)
     if not cols:
         return None
-    return a.fit_model(bar.pred, np.hstack([bar.extra, np.column_stack(cols)]))
+    return a.fit_model(bar.pred, np.hstack([bar.extra, np.column_stack(cols)]),
+                       bar.lag_s is not None)
 
 
 def _rms(r) -> float:

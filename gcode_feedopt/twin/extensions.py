@@ -10,7 +10,7 @@ way ``diagnose`` fitted it:
   or at the output (form ``output``);
 - ``backlash``: the play of width b on the command before the dynamics (form ``input``) or on
   the response (form ``output``), plus ``offset_mm``, where the band sat in the log it was
-  fitted on;
+  fitted on, and on a servo the lag error −``lag_s``·v̂ of the twin fitted with it;
 - ``friction``: m·(−sign v_cmd), relaxing with ``relax_s`` once the axis stops, through the
   dynamics (``response``), the force response (``force``) or at the output (``output``); on a
   position loop with integral action (a servo) form ``integral``: the force's step at each
@@ -66,7 +66,7 @@ PARAMS = {
     "periodic_position": {"wavelength_mm": (1e-3, 1e4), "amplitude_mm": (0.0, 10.0),
                           "phase_rad": (-10.0, 10.0), "form": ("dynamics", "output")},
     "backlash": {"magnitude_mm": (0.0, 10.0), "offset_mm": (-10.0, 10.0),
-                 "form": ("input", "output")},
+                 "lag_s": (-0.1, 0.1), "form": ("input", "output")},
     "friction": {"magnitude_mm": (-10.0, 10.0), "relax_s": (0.0, 1e6),
                  "integral_s": (1e-4, 10.0),
                  "form": ("response", "force", "output", "integral")},
@@ -83,7 +83,7 @@ REQUIRED = {
 }
 DEFAULTS = {
     "periodic_position": {"phase_rad": 0.0, "form": "dynamics"},
-    "backlash": {"offset_mm": 0.0, "form": "input"},
+    "backlash": {"offset_mm": 0.0, "lag_s": 0.0, "form": "input"},
     "friction": {"relax_s": 0.0, "integral_s": 0.1, "form": "response"},
     "cross_coupling": {"mm_per_mm_s2": 0.0, "coefficient": 0.0, "form": "acceleration"},
 }
@@ -138,9 +138,10 @@ def additive_term(kind: str, params: dict, cmd_mm: np.ndarray, ts_s: float, h: n
         return respond(s, h) if p["form"] == "dynamics" else s
     if kind == "backlash":
         b = p["magnitude_mm"]
+        lag = -p["lag_s"] * np.gradient(pred, ts_s) if p["lag_s"] else 0.0
         if p["form"] == "input":
-            return respond(fx.play(cmd, b), h) - pred + p["offset_mm"]
-        return fx.play(pred, b) - pred + p["offset_mm"]
+            return respond(fx.play(cmd, b), h) - pred + p["offset_mm"] + lag
+        return fx.play(pred, b) - pred + p["offset_mm"] + lag
     if kind == "friction":
         if p["form"] == "integral":
             s = integral_sign(cmd, ts_s, p["integral_s"])
