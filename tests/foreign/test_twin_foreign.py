@@ -90,6 +90,8 @@ SETS = {
     "hotend21more": (21, "more"),
     # PID servo (seed 8) with the drive's effects: its integrator washes a friction out
     "servo8more": (8, "more"),
+    # PID servo whose resonance shift came with a 0.2 ms "delay", the scan's smallest
+    "servo25": (25, True),
     # PID servos with the drive's effects whose twins' lag is off by −0.09 / +0.12 ms
     "servo5more": (5, "more"),
     "servo19more": (19, "more"),
@@ -189,6 +191,16 @@ def test_effects_named_with_their_parameter(which, dataset):
         if truth["kind"] == "gain":
             tv, gv = tv - 1, gv - 1
         assert abs(gv - tv) <= 0.05 * abs(tv), (e["file"], truth, g)
+
+
+def test_a_resonance_shift_comes_without_a_delay_at_the_edge_of_its_scan(dataset):
+    """On a servo (seed 25) a −5 % resonance shift on x was named with a 0.196 ms delay on x
+    beside it: the delay scan's best point at its lowest end, less delay than the scan tells
+    from none (catalogue._delay). The shift alone is named."""
+    truth, g, d = _named(dataset("servo25"), "resonance_shift")
+    assert g is not None, (truth, d.effects)
+    others = [e for e in d.effects if e["kind"] not in ("none", "resonance_shift")]
+    assert not others, d.effects
 
 
 def test_a_fan_inside_a_modes_band_is_still_named(dataset):
