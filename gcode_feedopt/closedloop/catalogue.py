@@ -335,7 +335,7 @@ def _delay(S: _Scorer):
                     coarse=lambda d: S.quick_pred(fx.delay_signal(pred, d, ts)))
     if d <= grid[0]:
         d = 0.0
-    m = S.A.fit_model(fx.delay_signal(pred, d, ts) if d else pred, S.extra, S.lag)
+    m = S.A.fit_model(fx.delay_signal(pred, d, ts), S.extra, S.lag)
     return ("delay", "command", {"seconds": float(d)}, m, n, 1)
 
 

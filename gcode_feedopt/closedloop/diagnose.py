@@ -76,7 +76,7 @@ from scipy import stats
 from scipy.signal import oaconvolve
 
 from ..errors import LogError
-from ..twin.extensions import mean_offsets
+from ..twin.extensions import lag_regressor, mean_offsets
 from ..twin.model import axis_twin, noise_floor_mm
 from ..twin.physics import RINGING_ZETA, AxisPhysics, axis_physics
 from ..vm import effects as fx
@@ -305,7 +305,7 @@ def _lag_column(p0, phys: AxisPhysics, ts_s):
         return np.zeros((p0.size, 0)), 0.0
     t = np.arange(phys.mean.size) * ts_s
     sd = float(np.linalg.norm(t @ phys.factor))
-    return -np.gradient(p0, ts_s)[:, None] * sd, sd
+    return lag_regressor(p0, ts_s)[:, None] * sd, sd
 
 
 # ---------------------------------------------------------------------------------------------

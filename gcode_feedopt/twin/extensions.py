@@ -114,6 +114,12 @@ def integral_sign(cmd_mm: np.ndarray, ts_s: float, tau_s: float) -> np.ndarray:
     return s - low
 
 
+def lag_regressor(pred_mm: np.ndarray, ts_s: float) -> np.ndarray:
+    """(K,) −dx̂/dt: what the prediction x̂ late by τ adds, per second of τ (to first order).
+    The backlash form's ``lag_s`` on a servo (diagnose fits it with this column)."""
+    return -np.gradient(np.asarray(pred_mm, float), ts_s)
+
+
 def additive_term(kind: str, params: dict, cmd_mm: np.ndarray, ts_s: float, h: np.ndarray, *,
                   other_pred_mm: np.ndarray | None = None, force_h: np.ndarray | None = None,
                   pred_mm: np.ndarray | None = None,
@@ -138,7 +144,7 @@ def additive_term(kind: str, params: dict, cmd_mm: np.ndarray, ts_s: float, h: n
         return respond(s, h) if p["form"] == "dynamics" else s
     if kind == "backlash":
         b = p["magnitude_mm"]
-        lag = -p["lag_s"] * np.gradient(pred, ts_s) if p["lag_s"] else 0.0
+        lag = p["lag_s"] * lag_regressor(pred, ts_s) if p["lag_s"] else 0.0
         if p["form"] == "input":
             return respond(fx.play(cmd, b), h) - pred + p["offset_mm"] + lag
         return fx.play(pred, b) - pred + p["offset_mm"] + lag

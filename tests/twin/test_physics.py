@@ -9,6 +9,7 @@ import warnings
 import numpy as np
 import pytest
 
+from gcode_feedopt.optimize.slowdown import SlowdownSettings
 from gcode_feedopt.profile import load_profile
 from gcode_feedopt.profile.builtin import modal_frf
 from gcode_feedopt.profile.schema import FRFSet, Mode
@@ -42,8 +43,6 @@ def test_ring_time_of_one_mode_is_its_envelopes_decay(freq_hz, zeta):
 def test_the_built_in_machines_ring_for_less_than_the_slow_downs_defaults():
     """The slow-down's defaults (0.3 s of history, 0.5 s of look-back) were measured on these;
     `SlowdownSettings.seeing_out` leaves them as they are there."""
-    from gcode_feedopt.optimize.slowdown import SlowdownSettings
-
     for name in ("ender3pro", "voron24"):
         st = SlowdownSettings()
         assert st.seeing_out(ring_time_s(load_profile(name))) == st
