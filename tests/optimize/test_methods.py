@@ -4,6 +4,7 @@ Monte Carlo, the shift-invariant prior, and the methods end to end on the virtua
 from __future__ import annotations
 
 import json
+import math
 import pathlib
 import subprocess
 import sys
@@ -379,7 +380,8 @@ def test_slicer_feed_caps_every_method(ender, butterfly_piece, method, optimizer
 def test_acceleration_search_stops_at_the_kinematic_bound():
     """search_acceleration tries a lower acceleration only while the firmware's own plan there
     (a lower bound of any slow-down of it) is faster than the best plan found, skips one that
-    leaves F unchanged, and keeps the first plan when no candidate beats it."""
+    leaves F unchanged, keeps the first plan when no candidate beats it, and refines the best
+    with the midpoints to its neighbours on the grid."""
     from types import SimpleNamespace
 
     from gcode_feedopt import pipeline
@@ -395,9 +397,10 @@ def test_acceleration_search_stops_at_the_kinematic_bound():
                           firmware=prof.firmware).duration_s
     ts = prof.ts_s
 
-    def fake(t_s, slowed=0.3):
+    def fake(t_s, slowed=0.3, relaxed=0, excess_mm=0.0):
         return SimpleNamespace(s_mm=np.zeros(int(round(t_s / ts)) + 1),
-                               info={"slowed_length_fraction": slowed, "relaxed_samples": 0})
+                               info={"slowed_length_fraction": slowed, "relaxed_samples": relaxed,
+                                     "relaxed_excess_rms_mm": excess_mm})
 
     calls = []
     kw = dict(vmax=vmax, axis_v=axis_v, axis_a=axis_a, fw_limits=None, use_slicer_feed=False)
@@ -406,14 +409,32 @@ def test_acceleration_search_stops_at_the_kinematic_bound():
     best, chosen, tried = search_acceleration(path, prof, first,
                                               lambda a: calls.append(a) or fake(kin), **kw)
     assert best is first and chosen is None and calls == [] and len(tried) == 1
-    # a first plan twice F's time: lower accelerations are tried, the fastest kept
-    times = iter([kin * 1.5, kin * 1.3, kin * 1.4, kin * 1.6])
-    first = fake(kin * 2.0)
-    best, chosen, tried = search_acceleration(path, prof, first,
-                                              lambda a: calls.append(a) or fake(next(times)), **kw)
+    # a first plan twice F's time: lower accelerations are tried, the fastest kept, then the
+    # geometric midpoints between it and its neighbours on the grid
     a0 = min(axis_a["x"], axis_a["y"])
-    assert chosen == pytest.approx(0.5 * a0) and (best.s_mm.size - 1) * ts == pytest.approx(kin * 1.3, abs=ts)
-    assert [c["x"] for c in calls] == pytest.approx([0.7 * a0, 0.5 * a0, 0.35 * a0, 0.25 * a0][:len(calls)])
+    by_factor = {0.7: 1.5, 0.5: 1.3, 0.35: 1.4, 0.25: 1.6, math.sqrt(0.35): 1.25,
+                 math.sqrt(0.175): 1.35}
+
+    def at(a):
+        calls.append(a)
+        f = next(k for k in by_factor if abs(a["x"] - k * a0) < 1e-6 * a0)
+        return fake(kin * by_factor[f])
+
+    first = fake(kin * 2.0)
+    best, chosen, tried = search_acceleration(path, prof, first, at, **kw)
+    grid = [0.7, 0.5, 0.35, 0.25]
+    coarse = [c["x"] for c in calls[:len(calls) - 2]]
+    assert coarse == pytest.approx([f * a0 for f in grid][:len(coarse)]) and 0.35 * a0 in coarse
+    assert [c["x"] for c in calls[-2:]] == pytest.approx([math.sqrt(0.35) * a0, math.sqrt(0.175) * a0])
+    assert chosen == pytest.approx(math.sqrt(0.35) * a0)
+    assert (best.s_mm.size - 1) * ts == pytest.approx(kin * 1.25, abs=ts)
+    # a faster candidate that gives up on more samples than the best: taken only while their
+    # excess over the tolerance (RMS) is within the room given
+    for excess, room, taken in ((2e-4, 2.5e-4, True), (3e-4, 2.5e-4, False), (2e-4, 0.0, False)):
+        best, chosen, tried = search_acceleration(
+            path, prof, fake(kin * 2.0), lambda a: fake(kin * 1.3, relaxed=3, excess_mm=excess),
+            relaxed_room_mm=room, **kw)
+        assert (chosen is not None) is taken
     # nothing slowed: nothing tried
     calls.clear()
     best, chosen, tried = search_acceleration(path, prof, fake(kin, slowed=0.0),

@@ -152,8 +152,8 @@ class SlowdownResult:
     Attributes:
         s_mm: (K,) path position at t_k = k·Ts, mm.
         scale: (M,) final scale of every grid cell.
-        info: rounds, evaluations, samples evaluated, relaxed samples, compute seconds,
-            fraction of length slowed, workers.
+        info: rounds, evaluations, samples evaluated, relaxed samples and their excess over
+            the tolerance (RMS), compute seconds, fraction of length slowed, workers.
         mean_xy_mm, bound_mm: (K, 2), (K,) the twin's prediction of the final plan and its
             chance bound (0 on unconstrained samples), mm.
         motion_mm: (K,) the part of the bound the motion causes (|μ_ε| or the overshoot
@@ -206,6 +206,8 @@ def plan_slowdown(path, limits: PlannerLimits, evaluator, *, ts_s: float,
     state.invalidate_approx()  # no-op unless the check budget ran out: report exact values
     s, out, mean, _ = state.evaluate(exact=True)
     b = out["b"]
+    on = b > 0
+    excess = np.maximum(b - evaluator.tol_at(s), 0.0)[on]
     cell_len = grid.length_mm
     info.update({
         "optimizer": "slowdown",
@@ -214,6 +216,9 @@ def plan_slowdown(path, limits: PlannerLimits, evaluator, *, ts_s: float,
         "evaluations": state.evaluations + sum(g["evaluations"] for g in group_stats),
         "samples_evaluated": state.evaluated + sum(g["samples_evaluated"] for g in group_stats),
         "relaxed_samples": int(np.sum(b > evaluator.tol_at(s))),
+        # what the given-up samples' bounds exceed their tolerance by, RMS over every
+        # constrained sample (the plan's predicted RMS γ, an upper estimate), mm
+        "relaxed_excess_rms_mm": float(np.sqrt(np.mean(excess ** 2))) if excess.size else 0.0,
         "grid_cells": grid.n_cells,
         "slowed_length_fraction": float(np.sum(cell_len[state.scale < 1.0]) /
                                         max(float(np.sum(cell_len)), 1e-12)),
