@@ -33,7 +33,7 @@ from ..plan.kinematic import (effective_limits, plan_kinematic, plan_trapezoids,
                               segment_plan)
 from ..twin.extensions import extra_variance_mm2, motion_offsets
 from ..twin.model import axis_noise_mm, axis_prior, learned_speed_noise_s, twin_impulse
-from ..twin.physics import ring_time_s
+from ..twin.physics import memory_time_s
 from ..vm.metrics import evaluate
 from ..vm.plant import Plant
 from ..vm.trajectory import Trajectory
@@ -326,8 +326,8 @@ def plan_offline(path, profile, req: PlanRequest, *, tolerance_mm, plant=None,
                                   offsets=motion_offsets(profile), **kw)
     if seg_tol is not None:
         evaluator.set_feature_tolerance(path, seg_tol)
-    # the plan must see the machine's ringing out (SlowdownSettings.seeing_out)
-    settings = (settings or SlowdownSettings()).seeing_out(ring_time_s(profile))
+    # the plan must see the machine's ringing and settling out (SlowdownSettings.seeing_out)
+    settings = (settings or SlowdownSettings()).seeing_out(memory_time_s(profile))
     res = plan_slowdown(path, limits, evaluator, ts_s=profile.ts_s, settings=settings)
 
     def plan_at(axis_a2):

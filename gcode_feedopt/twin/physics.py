@@ -114,6 +114,35 @@ def ring_time_s(profile, axes=("x", "y")) -> float:
     return longest
 
 
+def settle_time_s(profile, axes=("x", "y")) -> float:
+    """How long the machine takes to settle after a step of its command, s: the last time at
+    which an axis's step response (the impulse response summed) is off its final value — its
+    mean, or its spread's standard deviation, whichever is larger — by more than
+    RING_FRACTION of the step. A lightly damped machine settles as it stops ringing (the
+    built-in profiles 0.12–0.24 s, within their ring_time_s); a servo whose integral action
+    is slow creeps on long after its impulse response has died down: two PID servos on lead
+    screws (tests/foreign, seeds 16 and 17) ring for 0.12–0.13 s and settle in 0.30–0.33 s."""
+    longest = 0.0
+    for ax in axes:
+        if ax not in profile.axes or profile.axes[ax].frf is None:
+            continue
+        ir = axis_impulse(profile, ax)
+        step = np.cumsum(np.asarray(ir.mean, float))
+        L = np.cumsum(np.asarray(ir.factor, float), axis=0)
+        env = np.maximum(np.abs(step - step[-1]), np.sqrt(np.einsum("ij,ij->i", L, L)))
+        above = np.nonzero(env > RING_FRACTION)[0]
+        if above.size:
+            longest = max(longest, float(above[-1] + 1) * profile.ts_s)
+    return longest
+
+
+def memory_time_s(profile) -> float:
+    """How long a change of motion goes on moving the machine, s: the longer of
+    ring_time_s (the impulse response dies down) and settle_time_s (the step response
+    settles). What the slow-down must see out (SlowdownSettings.seeing_out)."""
+    return max(ring_time_s(profile), settle_time_s(profile))
+
+
 def apply_effects(fits: AxisModal, effects, ts_s: float | None = None) -> AxisModal:
     """The fits with a diagnosis's linear extensions applied to every member (a delay, a gain
     about the origin, the dominant mode moved as a mass change moves it, or with form

@@ -1,4 +1,4 @@
-"""twin.physics beyond the impulse response itself: how long a machine rings."""
+"""twin.physics beyond the impulse response itself: how long a machine rings and settles."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from gcode_feedopt.optimize.slowdown import SlowdownSettings
 from gcode_feedopt.profile import load_profile
 from gcode_feedopt.profile.builtin import modal_frf
 from gcode_feedopt.profile.schema import FRFSet, Mode
-from gcode_feedopt.twin.physics import RING_FRACTION, ring_time_s
+from gcode_feedopt.twin.physics import RING_FRACTION, memory_time_s, ring_time_s, settle_time_s
 
 
 def _one_mode_profile(freq_hz, zeta):
@@ -40,9 +40,33 @@ def test_ring_time_of_one_mode_is_its_envelopes_decay(freq_hz, zeta):
     assert abs(got - expected) <= 0.5 / freq_hz + 0.004
 
 
+def test_an_overdamped_mode_settles_as_its_slow_pole_decays():
+    """(2ζωs + ω²)/(s² + 2ζωs + ω²) at ζ 2 has real poles; its step response creeps in on
+    the slow one long after the impulse response has died down: settle_time_s is the last
+    time the step response is off 1 by RING_FRACTION (scipy's continuous step response,
+    within 2 samples), longer than ring_time_s."""
+    from scipy import signal
+
+    freq_hz, zeta = 10.0, 2.0
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        prof = _one_mode_profile(freq_hz, zeta)
+        got, ring = settle_time_s(prof), ring_time_s(prof)
+    w = 2 * math.pi * freq_hz
+    t = np.arange(0.0, 2.0, 1e-4)
+    _, y = signal.step(([2 * zeta * w, w * w], [1.0, 2 * zeta * w, w * w]), T=t)
+    expected = t[np.flatnonzero(np.abs(y - 1.0) > RING_FRACTION)[-1]]
+    assert abs(got - expected) <= 2 * prof.ts_s, (got, expected)
+    assert got > 1.5 * ring
+    assert memory_time_s(prof) == got
+
+
 def test_the_built_in_machines_ring_for_less_than_the_slow_downs_defaults():
     """The slow-down's defaults (0.3 s of history, 0.5 s of look-back) were measured on these;
-    `SlowdownSettings.seeing_out` leaves them as they are there."""
+    `SlowdownSettings.seeing_out` leaves them as they are there (they settle as they stop
+    ringing)."""
     for name in ("ender3pro", "voron24"):
         st = SlowdownSettings()
-        assert st.seeing_out(ring_time_s(load_profile(name))) == st
+        prof = load_profile(name)
+        assert settle_time_s(prof) <= ring_time_s(prof) == memory_time_s(prof)
+        assert st.seeing_out(memory_time_s(prof)) == st

@@ -132,7 +132,8 @@ class SlowdownSettings:
     group_samples: int = 200_000
 
     def seeing_out(self, ring_s: float) -> "SlowdownSettings":
-        """These settings on a machine that rings for ``ring_s`` (twin.physics.ring_time_s):
+        """These settings on a machine that rings (or settles) for ``ring_s``
+        (twin.physics.memory_time_s):
         a stretch's rounds are predicted with at least 1.5·ring_s of history, and a
         violation looks back up to 2.5·ring_s for its cause. The defaults were measured on
         machines that ring for 0.16–0.28 s; on a corexy that rings for 0.94 s (tests/foreign, seed 0)
