@@ -297,10 +297,12 @@ PEAK_ACCEL_MATCH = 0.005
 
 
 def plan_peaks(schedule: Schedule, accel_mm_s2: np.ndarray | None, n: int) -> np.ndarray | None:
-    """(N,) the peak speed of every segment the plan made one firmware trapezoid at the
-    acceleration the firmware will use (``accel_mm_s2``) between junctions that F does not
-    set (plan.kinematic.segment_plan ``exact``), NaN elsewhere; None when the plan does not
-    say (``schedule.segment_plan``: kinematic and slow-down plans do).
+    """(N,) the speed to write in one line for every segment the plan made one firmware
+    trapezoid at the acceleration the firmware will use (``accel_mm_s2``): its peak between
+    junctions that F does not set (plan.kinematic.segment_plan ``exact``), the plan's feed
+    cap where classic jerk sets a junction at either end (Marlin's jerk rule takes the moves'
+    nominal speeds, and the plan's junctions took the caps); NaN elsewhere; None when the plan
+    does not say (``schedule.segment_plan``: kinematic and slow-down plans do).
 
     One line with F = that peak is what the firmware plans: the same entry and exit junctions
     (its look-ahead is the plan's), the same acceleration and the same top speed. Read from the
@@ -316,9 +318,16 @@ def plan_peaks(schedule: Schedule, accel_mm_s2: np.ndarray | None, n: int) -> np
     fw = np.asarray(accel_mm_s2, float)
     if peak.shape != (n,) or fw.shape != (n,):
         return None
-    ok = ((np.abs(acc - fw) <= PEAK_ACCEL_MATCH * fw) & (peak > 0) & np.isfinite(peak)
-          & np.asarray(sp.exact, bool))
-    return np.where(ok, peak, np.nan)
+    exact = np.asarray(sp.exact, bool)
+    ok = (np.abs(acc - fw) <= PEAK_ACCEL_MATCH * fw) & (peak > 0) & np.isfinite(peak)
+    speed = np.where(exact, peak, np.nan)
+    if sp.cap_mm_s is not None and np.shape(sp.cap_mm_s) == (n,):
+        # a classic-jerk junction at an end: one line at the plan's cap, the nominal speed
+        # the plan's junctions assumed; the firmware's trapezoid still peaks where the plan's
+        # does (the look-ahead and the acceleration are the plan's)
+        cap = np.asarray(sp.cap_mm_s, float)
+        speed = np.where(~exact & np.isfinite(cap) & (cap >= peak), cap, speed)
+    return np.where(ok, speed, np.nan)
 
 
 def _cell_runs(cells: SlowdownCells, cell_range: list, k: int, lo: float, hi: float):

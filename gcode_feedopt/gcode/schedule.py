@@ -18,11 +18,14 @@ class SegmentPlan:
         accel_mm_s2: (N,) the acceleration of each segment's trapezoid, mm/s².
         exact: (N,) bool, the firmware's junction speeds at both ends of the segment do not
             depend on F (False where classic jerk sets a junction).
+        cap_mm_s: (N,) the plan's feed cap of each segment (the nominal speed its junctions
+            were planned with), mm/s; None when not known.
     """
 
     peak_mm_s: np.ndarray
     accel_mm_s2: np.ndarray
     exact: np.ndarray
+    cap_mm_s: np.ndarray | None = None
 
 
 @dataclass(frozen=True, eq=False)

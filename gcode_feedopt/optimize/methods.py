@@ -373,7 +373,8 @@ def _segment_plan(cells: SlowdownCells, n_segments: int) -> SegmentPlan:
     first = np.searchsorted(cells.parent, np.arange(n_segments + 1))
     return segment_plan(np.maximum.reduceat(cells.vpeak_mm_s, first[:-1]),
                         np.minimum.reduceat(cells.accel_mm_s2, first[:-1]),
-                        np.asarray(cells.jerk_junction)[first])
+                        np.asarray(cells.jerk_junction)[first],
+                        np.minimum.reduceat(cells.vcap_mm_s, first[:-1]))
 
 
 def plan_mpc(path, profile, predictor, *, method, tolerance_mm, stringency, vmax_mm_s=None,

@@ -123,18 +123,20 @@ def plan_trapezoids(path: Path, *, vmax_mm_s: float, axis_vmax_mm_s: dict,
 
 
 def segment_plan(peak_mm_s: np.ndarray, accel_mm_s2: np.ndarray,
-                 jerk_junction: np.ndarray | None) -> SegmentPlan:
-    """What the writer needs to write a planned segment as one line at its peak speed
-    (gcode.pieces.plan_peaks): the peak and acceleration of every segment's trapezoid, and
-    ``exact`` (N,): the firmware's junction speeds at both ends do not depend on F. Classic
-    jerk's do (Marlin limits the junction by the jerk of the two moves at their nominal
-    speeds), so a line at the peak instead of the plan's cap may cross such a junction faster
-    than planned."""
+                 jerk_junction: np.ndarray | None,
+                 cap_mm_s: np.ndarray | None = None) -> SegmentPlan:
+    """What the writer needs to write a planned segment as one line (gcode.pieces.plan_peaks):
+    the peak and acceleration of every segment's trapezoid, ``exact`` (N,): the firmware's
+    junction speeds at both ends do not depend on F, and the plan's feed cap of each segment.
+    Classic jerk's do depend on F (Marlin limits the junction by the jerk of the two moves at
+    their nominal speeds), so such a segment is written at the cap its junctions were planned
+    with, not at its peak."""
     n = peak_mm_s.size
     jerk = (np.zeros(n + 1, bool) if jerk_junction is None
             else np.asarray(jerk_junction, bool))
     return SegmentPlan(peak_mm_s=peak_mm_s, accel_mm_s2=accel_mm_s2,
-                       exact=~(jerk[:-1] | jerk[1:]))
+                       exact=~(jerk[:-1] | jerk[1:]),
+                       cap_mm_s=None if cap_mm_s is None else np.asarray(cap_mm_s, float))
 
 
 def effective_limits(profile, vmax_mm_s: float | None = None, amax_mm_s2: float | None = None):
@@ -188,4 +190,5 @@ def plan_kinematic(path: Path, profile, *, use_slicer_feed: bool = False,
                     info={"trapezoids": tr, "segment_start_s": start,
                           "segment_end_s": start + tr.motion_s, "plan_time_s": tr.duration_s,
                           "vmax_mm_s": vmax, "amax_mm_s2": amax},
-                    segment_plan=segment_plan(tr.vc_mm_s, tr.accel_mm_s2, lim.jerk_junction))
+                    segment_plan=segment_plan(tr.vc_mm_s, tr.accel_mm_s2, lim.jerk_junction,
+                                              lim.vcap_mm_s))

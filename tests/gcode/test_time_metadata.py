@@ -29,7 +29,7 @@ def test_rescale_times_moves_every_time_line_and_nothing_else():
 
 @pytest.mark.parametrize("name,lines,method", [
     ("cura-4.11_ender3_3dbenchy.gcode", 5000, "pidd"),
-    ("prusaslicer-2.6.1_mini_3dbenchy.gcode", 6000, "kinematic")])
+    ("prusaslicer-2.6.1_mini_3dbenchy.gcode", 6000, "pidd")])
 def test_time_in_the_file_is_the_summary_time(name, lines, method, tmp_path):
     src = GCODE_DIR / name
     if not src.is_file():
