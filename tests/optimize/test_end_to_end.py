@@ -112,6 +112,22 @@ def test_pidd_beats_conservative_by_a_quarter_on_a_benchA_plant(bench_a, eta):
     assert m.cycle_time_s <= 0.75 * cons.cycle_time_s
 
 
+def _foreign_pidd(seed: int, tmp_path):
+    """pidd on a machine of tests/foreign: profile built from its FRFs as `profile build`
+    does, butterfly at 150 mm/s and 3 m/s², E_max 0.1 mm, η 0.95, executed on its own
+    physics; (schedule, metrics)."""
+    mach = make_machine(seed)
+    write_dataset(mach, tmp_path, effects=False)
+    labels = json.loads((tmp_path / "labels.json").read_text())
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        prof, _ = build_from_frfs(load_profile("ender3pro"),
+                                  {a: sorted((tmp_path / "frf").glob(f"{a}_*.csv")) for a in "xy"},
+                                  name=f"foreign-{seed}")
+    prof = with_limits(prof, 150.0, 3000.0)
+    return _run("pidd", _butterfly(prof), prof, ForeignPlant(mach, labels), 0.1, 0.95)
+
+
 @pytest.mark.shared_data
 def test_pidd_sees_out_the_ringing_of_a_lightly_damped_foreign_corexy(tmp_path):
     """A corexy simulated apart from the twin (tests/foreign, seed 0: belts 25.7/26.5 Hz at
@@ -121,16 +137,7 @@ def test_pidd_sees_out_the_ringing_of_a_lightly_damped_foreign_corexy(tmp_path):
     machines) the plan gave up 4,088 samples and broke the tolerance there: RMS γ 35.6 µm,
     89.3 % within. Seeing the twin's ringing out (SlowdownSettings.seeing_out) it keeps the
     tolerance with none given up."""
-    mach = make_machine(0)
-    write_dataset(mach, tmp_path, effects=False)
-    labels = json.loads((tmp_path / "labels.json").read_text())
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        prof, _ = build_from_frfs(load_profile("ender3pro"),
-                                  {a: sorted((tmp_path / "frf").glob(f"{a}_*.csv")) for a in "xy"},
-                                  name="foreign-0")
-    prof = with_limits(prof, 150.0, 3000.0)
-    sch, m = _run("pidd", _butterfly(prof), prof, ForeignPlant(mach, labels), 0.1, 0.95)
+    sch, m = _foreign_pidd(0, tmp_path)
     assert sch.info["relaxed_samples"] == 0
     assert m.rms_gamma_mm <= 0.05 * 0.1
     assert m.within_fraction >= 0.95
@@ -145,16 +152,7 @@ def test_pidd_waits_for_a_foreign_servo_to_settle(tmp_path):
     samples whose cause lay further back (RMS γ 13.7 µm against 5, 99.1 % within, 38.7 s);
     seeing the settling out (twin.physics.memory_time_s) it gives none up and keeps the
     tolerance, faster."""
-    mach = make_machine(17)
-    write_dataset(mach, tmp_path, effects=False)
-    labels = json.loads((tmp_path / "labels.json").read_text())
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        prof, _ = build_from_frfs(load_profile("ender3pro"),
-                                  {a: sorted((tmp_path / "frf").glob(f"{a}_*.csv")) for a in "xy"},
-                                  name="foreign-17")
-    prof = with_limits(prof, 150.0, 3000.0)
-    sch, m = _run("pidd", _butterfly(prof), prof, ForeignPlant(mach, labels), 0.1, 0.95)
+    sch, m = _foreign_pidd(17, tmp_path)
     assert sch.info["relaxed_samples"] == 0
     assert m.rms_gamma_mm <= 0.05 * 0.1
     assert m.within_fraction >= 0.95
