@@ -326,7 +326,7 @@ def plan_peaks(schedule: Schedule, accel_mm_s2: np.ndarray | None, n: int) -> np
         # the plan's junctions assumed; the firmware's trapezoid still peaks where the plan's
         # does (the look-ahead and the acceleration are the plan's)
         cap = np.asarray(sp.cap_mm_s, float)
-        speed = np.where(~exact & np.isfinite(cap) & (cap >= peak), cap, speed)
+        speed = np.where(~exact & np.isfinite(cap) & (cap >= peak * (1.0 - 1e-9)), cap, speed)
     return np.where(ok, speed, np.nan)
 
 
