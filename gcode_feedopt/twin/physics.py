@@ -102,16 +102,11 @@ def ring_time_s(profile, axes=("x", "y")) -> float:
     above RING_FRACTION of its peak (at most the twin's memory, n_taps·Ts). Benchmarks built
     from FRFs give 0.16–0.28 s (the built-in profiles, benchA); a corexy whose 26 Hz modes
     have ζ 0.026 rings for 0.94 s (tests/foreign, seed 0)."""
-    longest = 0.0
-    for ax in axes:
-        if ax not in profile.axes or profile.axes[ax].frf is None:
-            continue
-        ir = axis_impulse(profile, ax)
+    def envelope(ir):
         env = np.maximum(np.abs(np.asarray(ir.mean, float)), np.sqrt(np.asarray(ir.var, float)))
-        above = np.nonzero(env > RING_FRACTION * env.max())[0]
-        if above.size:
-            longest = max(longest, float(above[-1] + 1) * profile.ts_s)
-    return longest
+        return env / env.max()
+
+    return _last_above(profile, axes, envelope)
 
 
 def settle_time_s(profile, axes=("x", "y")) -> float:
@@ -122,15 +117,22 @@ def settle_time_s(profile, axes=("x", "y")) -> float:
     built-in profiles 0.12–0.24 s, within their ring_time_s); a servo whose integral action
     is slow creeps on long after its impulse response has died down: two PID servos on lead
     screws (tests/foreign, seeds 16 and 17) ring for 0.12–0.13 s and settle in 0.30–0.33 s."""
+    def envelope(ir):
+        step = np.cumsum(np.asarray(ir.mean, float))
+        L = np.cumsum(np.asarray(ir.factor, float), axis=0)
+        return np.maximum(np.abs(step - step[-1]), np.sqrt(np.einsum("ij,ij->i", L, L)))
+
+    return _last_above(profile, axes, envelope)
+
+
+def _last_above(profile, axes, envelope) -> float:
+    """The latest time, over the axes with FRFs, at which ``envelope(impulse response)`` (an
+    (n,) array relative to the step or the peak) is above RING_FRACTION, s."""
     longest = 0.0
     for ax in axes:
         if ax not in profile.axes or profile.axes[ax].frf is None:
             continue
-        ir = axis_impulse(profile, ax)
-        step = np.cumsum(np.asarray(ir.mean, float))
-        L = np.cumsum(np.asarray(ir.factor, float), axis=0)
-        env = np.maximum(np.abs(step - step[-1]), np.sqrt(np.einsum("ij,ij->i", L, L)))
-        above = np.nonzero(env > RING_FRACTION)[0]
+        above = np.nonzero(envelope(axis_impulse(profile, ax)) > RING_FRACTION)[0]
         if above.size:
             longest = max(longest, float(above[-1] + 1) * profile.ts_s)
     return longest

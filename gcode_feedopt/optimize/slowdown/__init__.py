@@ -207,8 +207,8 @@ def plan_slowdown(path, limits: PlannerLimits, evaluator, *, ts_s: float,
     state.invalidate_approx()  # no-op unless the check budget ran out: report exact values
     s, out, mean, _ = state.evaluate(exact=True)
     b = out["b"]
-    on = b > 0
-    excess = np.maximum(b - evaluator.tol_at(s), 0.0)[on]
+    tol = evaluator.tol_at(s)
+    excess = np.maximum(b - tol, 0.0)[b > 0]
     cell_len = grid.length_mm
     info.update({
         "optimizer": "slowdown",
@@ -216,7 +216,7 @@ def plan_slowdown(path, limits: PlannerLimits, evaluator, *, ts_s: float,
         "whole_file_checks": stats["whole_file_checks"],
         "evaluations": state.evaluations + sum(g["evaluations"] for g in group_stats),
         "samples_evaluated": state.evaluated + sum(g["samples_evaluated"] for g in group_stats),
-        "relaxed_samples": int(np.sum(b > evaluator.tol_at(s))),
+        "relaxed_samples": int(np.sum(b > tol)),
         # what the given-up samples' bounds exceed their tolerance by, RMS over every
         # constrained sample (the plan's predicted RMS γ, an upper estimate), mm
         "relaxed_excess_rms_mm": float(np.sqrt(np.mean(excess ** 2))) if excess.size else 0.0,
