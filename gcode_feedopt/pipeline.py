@@ -419,6 +419,7 @@ def _report(run: _Run) -> Report:
         dry_run=opts.dry_run,
         predicted_max_contour_error_mm=info.get("predicted_max_contour_error_mm"),
         predicted_p95_contour_error_mm=info.get("predicted_p95_contour_error_mm"),
+        predicted_within_fraction=info.get("predicted_within_fraction"),
         stage_wall_s={k: round(v, 4) for k, v in run.wall.items()},
         extra={"input_time_same_limits_s": run.t_in,
                "input_time_profile_limits_s": run.fw_in_raised,
@@ -426,10 +427,10 @@ def _report(run: _Run) -> Report:
                "accel_lines": result.accel_lines, "accel_override_lines": result.override_lines,
                **({"executed": run.executed} if run.executed is not None else {}),
                **{k: info[k] for k in ("optimizer", "window_status", "fallback_windows",
-                                        "relaxed_windows", "relaxed_samples", "rounds",
-                                        "whole_file_checks", "samples_evaluated",
-                                        "slowed_length_fraction", "compute_s", "solver_s",
-                                        "accel_chosen_mm_s2")
+                                        "relaxed_windows", "relaxed_samples", "budget_samples",
+                                        "rounds", "whole_file_checks", "samples_evaluated",
+                                        "slowed_length_fraction", "predicted_rms_gamma_mm",
+                                        "compute_s", "solver_s", "accel_chosen_mm_s2")
                   if k in info},
                **({"accel_search": [{"accel_mm_s2": a, "plan_time_s": t}
                                     for a, t in info["accel_search"]]}

@@ -43,6 +43,9 @@ class Report:
     dry_run: bool = False
     predicted_max_contour_error_mm: float | None = None
     predicted_p95_contour_error_mm: float | None = None
+    #: the expected share of the constrained samples within tolerance under the twin
+    #: (optimize.slowdown.budget; the stringency is this share)
+    predicted_within_fraction: float | None = None
     stage_wall_s: dict = field(default_factory=dict)
     notes: list = field(default_factory=list)
     extra: dict = field(default_factory=dict)
@@ -78,7 +81,9 @@ class Report:
                          f"95th percentile {self.predicted_p95_contour_error_mm:.3f} mm "
                          + (f"(tolerance per feature, {self.tolerance_mm:g} mm elsewhere, at "
                             f"{self.stringency:.0%})" if (self.extra or {}).get("feature_tolerance_mm")
-                            else f"(tolerance {self.tolerance_mm:g} mm at {self.stringency:.0%})"))
+                            else f"(tolerance {self.tolerance_mm:g} mm at {self.stringency:.0%})")
+                         + (f"; {self.predicted_within_fraction:.1%} of samples expected within"
+                            if self.predicted_within_fraction is not None else ""))
         else:
             lines.append(f"  predicted contour error: n/a ({self.method} plans kinematic limits only; "
                          f"tolerance {self.tolerance_mm:g} mm not checked)")

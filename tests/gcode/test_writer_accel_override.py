@@ -265,7 +265,9 @@ def test_the_twin_keeps_the_tolerance_at_the_plans_accelerations(tmp_path):
     rep = optimize_file(src, tmp_path / "out.gcode", profile, Options())
     # measured: 236.6 s -> 217.4 s (-8.1 %), plan 215.8 s; executed worst 0.097 mm, 100 % within
     assert rep.output_time_s < 0.93 * rep.input_time_s
-    assert rep.predicted_max_contour_error_mm <= rep.tolerance_mm + 1e-6
+    # every sample within its bound or carried by the stringency's budget (optimize.slowdown.budget)
+    assert rep.extra["relaxed_samples"] == 0
+    assert rep.predicted_within_fraction >= rep.stringency
     ex = rep.extra["executed"]
     assert ex["within_fraction"] >= rep.stringency
     assert ex["time_s"] == pytest.approx(rep.plan_time_s, rel=0.015)

@@ -90,12 +90,15 @@ def test_pidd_keeps_the_tolerance_on_a_benchA_plant(bench_a, eta):
 
 
 @pytest.mark.shared_data
-@pytest.mark.parametrize("eta", [0.95, 0.99])
+@pytest.mark.parametrize("eta", [0.90, 0.95, 0.99])
 def test_pidd_beats_conservative_by_a_quarter_on_a_benchA_plant(bench_a, eta):
     """The same lightly damped machine: slowing down around the ringing at F's 5 m/s² made
-    pidd 1.25× / 1.07× conservative's cycle (12.2 / 14.4 s, two thirds of the length
-    slowed); the acceleration search (optimize.methods.search_acceleration) plans at a lower
-    acceleration where that is faster: ≤ 0.75× (measured 0.70 / 0.57), tolerance kept."""
+    pidd 1.42× / 1.25× / 1.07× conservative's cycle (η 0.90 / 0.95 / 0.99; two thirds of the
+    length slowed); the acceleration search (optimize.methods.search_acceleration) plans at a
+    lower acceleration where that is faster, and the stringency as the share of samples
+    within (optimize.slowdown.budget) spends the risk where it buys time: ≤ 0.75× (measured
+    0.737 / 0.653 / 0.525; with the bound on every sample 0.805 / 0.700 / 0.55), tolerance
+    kept."""
     prof = with_limits(bench_a[0], 150.0, 5000.0)
     path = _butterfly(prof)
     plant = Plant(prof, seed=1)

@@ -397,10 +397,11 @@ def test_acceleration_search_stops_at_the_kinematic_bound():
                           firmware=prof.firmware).duration_s
     ts = prof.ts_s
 
-    def fake(t_s, slowed=0.3, relaxed=0, excess_mm=0.0):
+    def fake(t_s, slowed=0.3, relaxed=0, out=0.0, rms_mm=0.0):
         return SimpleNamespace(s_mm=np.zeros(int(round(t_s / ts)) + 1),
                                info={"slowed_length_fraction": slowed, "relaxed_samples": relaxed,
-                                     "relaxed_excess_rms_mm": excess_mm})
+                                     "predicted_within_fraction": 1.0 - out,
+                                     "predicted_rms_gamma_mm": rms_mm})
 
     calls = []
     kw = dict(vmax=vmax, axis_v=axis_v, axis_a=axis_a, fw_limits=None, use_slicer_feed=False)
@@ -428,12 +429,16 @@ def test_acceleration_search_stops_at_the_kinematic_bound():
     assert [c["x"] for c in calls[-2:]] == pytest.approx([math.sqrt(0.35) * a0, math.sqrt(0.175) * a0])
     assert chosen == pytest.approx(math.sqrt(0.35) * a0)
     assert (best.s_mm.size - 1) * ts == pytest.approx(kin * 1.25, abs=ts)
-    # a faster candidate that gives up on more samples than the best: taken only while their
-    # excess over the tolerance (RMS) is within the room given
-    for excess, room, taken in ((2e-4, 2.5e-4, True), (3e-4, 2.5e-4, False), (2e-4, 0.0, False)):
+    # a faster candidate that gives up on more samples than the best: taken only while the
+    # plan, those samples included, keeps the stringency's budget in expectation (share out,
+    # RMS γ)
+    for out, rms, budget, taken in ((0.01, 2e-3, (0.025, 2.5e-3), True),
+                                    (0.03, 2e-3, (0.025, 2.5e-3), False),
+                                    (0.01, 3e-3, (0.025, 2.5e-3), False),
+                                    (0.01, 2e-3, (0.0, 0.0), False)):
         best, chosen, tried = search_acceleration(
-            path, prof, fake(kin * 2.0), lambda a: fake(kin * 1.3, relaxed=3, excess_mm=excess),
-            relaxed_room_mm=room, **kw)
+            path, prof, fake(kin * 2.0),
+            lambda a: fake(kin * 1.3, relaxed=3, out=out, rms_mm=rms), budget=budget, **kw)
         assert (chosen is not None) is taken
     # nothing slowed: nothing tried
     calls.clear()

@@ -57,6 +57,18 @@ def _twin_evaluator(ender, path, tol=0.1, eta=0.95):
                          overshoot_reach_mm=1.4, ts_s=ender.ts_s)
 
 
+def _keeps_the_stringency(res, tol=0.1, eta=0.95):
+    """What a twin plan promises (optimize.slowdown.budget): no sample given up, every
+    predicted mean within E_max, every sample within its bound or carried by the budget —
+    the expected share within and RMS γ inside the share of the stringency's room."""
+    share = SlowdownSettings().budget_share
+    assert res.info["relaxed_samples"] == 0
+    assert res.motion_mm.max() <= tol + 1e-12
+    assert res.info["predicted_within_fraction"] >= 1.0 - share * (1.0 - eta) - 1e-9
+    assert res.info["predicted_rms_gamma_mm"] <= share * (1.0 - eta) * tol + 1e-12
+    assert np.sum(res.bound_mm > tol + 1e-12) == res.info["budget_samples"]
+
+
 def test_grid_at_full_scale_is_the_firmware_plan(ender, benchy):
     """Cells of one move meet straight on: at scale 1 every piece between exact stops is F's
     own motion (same duration, same positions at every sample from the piece's start)."""
@@ -120,21 +132,28 @@ def test_any_scale_stays_within_the_firmware_plan(ender, benchy, seed, floor):
         assert np.all(ds / ts <= vF_at(mid) * 1.02 + 1.0)
 
 
-def test_plan_keeps_the_bound_on_every_sample_as_the_whole_file_twin_predicts(ender, benchy):
-    """The returned bound is the whole-file twin's (recomputed from scratch here), within the
-    tolerance on every sample, and the windowed rounds (provisional values) left nothing
-    behind: the plan really was slowed where F breaks the tolerance."""
+def test_plan_keeps_the_stringency_as_the_whole_file_twin_predicts(ender, benchy):
+    """The returned bound is the whole-file twin's (recomputed from scratch here), every
+    sample within it or carried by the stringency's budget, and the windowed rounds
+    (provisional values) left nothing behind: the plan really was slowed where F breaks the
+    tolerance. With no budget (``budget_share`` 0) the bound holds on every sample, the
+    paper's constraint, and the plan is slower."""
     path, fw = benchy
     ev = _twin_evaluator(ender, path)
     res = plan_slowdown(path, _limits(path, ender, fw), ev, ts_s=ender.ts_s,
                         settings=SlowdownSettings(workers=1))
     bound = plan_bound(ev, path, res.s_mm)
     np.testing.assert_allclose(res.bound_mm, bound, atol=1e-9, rtol=0)
-    assert bound.max() <= 0.1 + 1e-12
-    assert res.info["relaxed_samples"] == 0
+    _keeps_the_stringency(res)
     F = plan_kinematic(path, ender, fw_limits=fw)
     assert plan_bound(ev, path, F.s_mm).max() > 0.12  # F breaks it: the test is not vacuous
     assert res.info["slowed_length_fraction"] > 0.01
+    strict = plan_slowdown(path, _limits(path, ender, fw), ev, ts_s=ender.ts_s,
+                           settings=SlowdownSettings(workers=1, budget_share=0.0))
+    assert strict.bound_mm.max() <= 0.1 + 1e-12
+    assert strict.info["relaxed_samples"] == strict.info["budget_samples"] == 0
+    assert res.info["budget_samples"] > 0
+    assert res.s_mm.size < strict.s_mm.size
 
 
 def test_provisional_rounds_give_the_plan_of_exact_rounds(ender, benchy):
@@ -149,7 +168,7 @@ def test_provisional_rounds_give_the_plan_of_exact_rounds(ender, benchy):
     ev = _twin_evaluator(ender, path)
     ev.memory = None  # no finite memory: every round predicts the whole plan exactly
     full = plan_slowdown(path, lim, ev, ts_s=ender.ts_s, settings=SlowdownSettings(workers=1))
-    assert full.bound_mm.max() <= 0.1 + 1e-12
+    _keeps_the_stringency(full)
     assert abs(fast.s_mm.size - full.s_mm.size) <= 0.005 * full.s_mm.size
     assert fast.info["samples_evaluated"] < 0.8 * full.info["samples_evaluated"]
 
@@ -157,7 +176,7 @@ def test_provisional_rounds_give_the_plan_of_exact_rounds(ender, benchy):
 def test_slowdown_plan_equals_the_window_method_within_the_stated_tolerance(ender, benchy):
     """Issue 9's shortcut against the full method (the receding-window LP, every window
     solved), 1500 Benchy lines, E_max 0.1 mm, η 0.95: cycle time within 2 % (measured
-    23.142 s against 23.254 s, −0.5 %), both within tolerance as each verifies (the window
+    22.948 s against 23.0 s, −0.2 %), both within tolerance as each verifies (the window
     method accepts 2 % of linearisation residue), and the slow-down plan an order of magnitude
     cheaper (measured 0.24 s against 12.7 s of compute)."""
     path, fw = benchy
@@ -165,7 +184,11 @@ def test_slowdown_plan_equals_the_window_method_within_the_stated_tolerance(ende
     fast = plan_schedule("pidd", path, ender, optimizer="slowdown", **kw)
     full = plan_schedule("pidd", path, ender, optimizer="window", screen=False, workers=1, **kw)
     assert abs(fast.duration_s - full.duration_s) <= 0.02 * full.duration_s
-    assert fast.info["predicted_max_contour_error_mm"] <= 0.1 + 1e-12
+    # the window method keeps the bound on every sample; the slow-down the stringency as the
+    # share of samples within (slowdown.budget: measured 22.948 s, 76 samples over their
+    # bound carried, 99.8 % expected within)
+    assert fast.info["relaxed_samples"] == 0
+    assert fast.info["predicted_within_fraction"] >= 1.0 - 0.5 * 0.05
     assert full.info["predicted_max_contour_error_mm"] <= 0.1 * 1.021
     assert fast.info["compute_s"] < 0.1 * full.info["compute_s"]
 
@@ -180,7 +203,7 @@ def test_worker_groups_give_a_verified_plan_like_one_process(ender, benchy):
     two = plan_slowdown(path, lim, _twin_evaluator(ender, path), ts_s=ender.ts_s,
                         settings=SlowdownSettings(workers=2, min_parallel_samples=0))
     assert two.info["workers"] == 2
-    assert two.bound_mm.max() <= 0.1 + 1e-12
+    _keeps_the_stringency(two)
     assert abs(two.s_mm.size - one.s_mm.size) <= 0.005 * one.s_mm.size
     # more groups than workers (bounded groups keep the cost linear in the file's length):
     # the same verified plan, within the same 0.5 %
@@ -188,7 +211,7 @@ def test_worker_groups_give_a_verified_plan_like_one_process(ender, benchy):
                          settings=SlowdownSettings(workers=2, min_parallel_samples=0,
                                                    group_samples=one.s_mm.size // 8))
     assert many.info["workers"] == 2 and many.info["groups"] >= 4
-    assert many.bound_mm.max() <= 0.1 + 1e-12
+    _keeps_the_stringency(many)
     assert abs(many.s_mm.size - one.s_mm.size) <= 0.005 * one.s_mm.size
 
 
