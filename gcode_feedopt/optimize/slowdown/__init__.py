@@ -161,8 +161,9 @@ class SlowdownResult:
     Attributes:
         s_mm: (K,) path position at t_k = k·Ts, mm.
         scale: (M,) final scale of every grid cell.
-        info: rounds, evaluations, samples evaluated, relaxed samples and their excess over
-            the tolerance (RMS), compute seconds, fraction of length slowed, workers.
+        info: rounds, evaluations, samples evaluated, relaxed (given-up) samples, samples
+            the stringency's budget carries and the expected share within and RMS γ,
+            compute seconds, fraction of length slowed, workers.
         mean_xy_mm, bound_mm: (K, 2), (K,) the twin's prediction of the final plan and its
             chance bound (0 on unconstrained samples), mm.
         motion_mm: (K,) the part of the bound the motion causes (|μ_ε| or the overshoot
@@ -220,9 +221,6 @@ def plan_slowdown(path, limits: PlannerLimits, evaluator, *, ts_s: float,
     given_up = left_over(over, out, tol, evaluator.z, st.budget_share)
     on = b > 0
     sd = out["unc"] / evaluator.z if evaluator.z > 0 else np.zeros_like(b)
-    excess = np.zeros(b.size)
-    excess[given_up] = (b - tol)[given_up]
-    excess = excess[on]
     p_out, rms_g = expected_share(out["mot"], sd, tol, on)
     cell_len = grid.length_mm
     info.update({
@@ -232,9 +230,6 @@ def plan_slowdown(path, limits: PlannerLimits, evaluator, *, ts_s: float,
         "evaluations": state.evaluations + sum(g["evaluations"] for g in group_stats),
         "samples_evaluated": state.evaluated + sum(g["samples_evaluated"] for g in group_stats),
         "relaxed_samples": int(given_up.size),
-        # what the given-up samples' bounds exceed their tolerance by, RMS over every
-        # constrained sample, mm
-        "relaxed_excess_rms_mm": float(np.sqrt(np.mean(excess ** 2))) if excess.size else 0.0,
         # samples over their bound that the stringency's budget carries (slowdown.budget)
         "budget_samples": int(over.size - given_up.size),
         # under the twin's Gaussian prediction: the expected share of the constrained
