@@ -32,7 +32,8 @@ from ..plan.request import PlanRequest
 from ..plan.kinematic import (effective_limits, plan_kinematic, plan_trapezoids, planner_limits,
                               segment_plan)
 from ..twin.extensions import extra_variance_mm2, motion_offsets
-from ..twin.model import axis_noise_mm, axis_prior, learned_speed_noise_s, twin_impulse
+from ..twin.model import (axis_noise_mm, axis_prior, learned_deviation_noise, learned_speed_noise_s,
+                          twin_impulse)
 from ..twin.physics import memory_time_s
 from ..vm.metrics import evaluate
 from ..vm.plant import Plant
@@ -131,10 +132,11 @@ def make_twin_predictor(profile, method: str, *, learn: bool):
     per axis, the level of what the twin cannot predict (twin.model.axis_noise_mm: what
     ``learn`` measured on the machine's logs, the profile's σ_ε until then, plus the variance
     of a fan ``diagnose -o`` wrote as an extension, twin.extensions.extra_variance_mm2) and
-    the part of it that grows with the commanded speed (twin.model.learned_speed_noise_s),
-    which widen the chance constraint by what the twin cannot predict. (The extensions'
-    deterministic terms, twin.extensions.mean_offsets, are not part of the predictor: the
-    slow-down optimizer adds the cross-coupling's, twin.extensions.motion_offsets.)"""
+    the parts of it that grow with the commanded speed (twin.model.learned_speed_noise_s) and
+    with the predicted dynamic error (twin.model.learned_deviation_noise), which widen the
+    chance constraint by what the twin cannot predict. (The extensions' deterministic terms,
+    twin.extensions.mean_offsets, are not part of the predictor: the slow-down optimizer adds
+    the cross-coupling's, twin.extensions.motion_offsets.)"""
     tw = profile.twin
     irs = [twin_impulse(profile, ax, method=method) for ax in ("x", "y")]
     priors = [axis_prior(profile, ax, method=method) for ax in ("x", "y")]
@@ -142,9 +144,12 @@ def make_twin_predictor(profile, method: str, *, learn: bool):
           + extra_variance_mm2(profile.axes[ax].effects) for ax in ("x", "y")]
     kv2 = [0.0 if method == "dd" else learned_speed_noise_s(tw.priors.get(ax)) ** 2
            for ax in ("x", "y")]
+    rho2 = [0.0 if method == "dd" else learned_deviation_noise(tw.priors.get(ax)) ** 2
+            for ax in ("x", "y")]
     return TwinPredictor(irs, tw.n2, tw.n3, s2, [p[0] for p in priors],
                          [p[1] for p in priors], use_feature_var=(method != "dd"),
-                         learn=learn and method in ("dd", "pidd"), speed_var=kv2)
+                         learn=learn and method in ("dd", "pidd"), speed_var=kv2,
+                         deviation_var=rho2)
 
 
 def _pieces(path, z_pieces: bool = True):

@@ -121,12 +121,16 @@ class TwinPredictor:
     """
 
     def __init__(self, irs, n2: int, n3: int, sigma2: float, mu, cov, *,
-                 use_feature_var: bool = True, learn: bool = False, speed_var=0.0):
+                 use_feature_var: bool = True, learn: bool = False, speed_var=0.0,
+                 deviation_var=0.0):
         self.h = [np.asarray(ir.mean, float) for ir in irs]
         self.ts_s = float(irs[0].ts_s)
         #: k_v² per axis (x, y), s²: what the twin cannot predict that grows with the axis's
         #: commanded speed v (an unmodelled lag), variance k_v²·v² (closedloop.learn)
         self.kv2 = np.broadcast_to(np.asarray(speed_var, float), (2,)).copy()
+        #: ρ² per axis: what the twin cannot predict in proportion to the dynamic error d it
+        #: predicts (predicted − commanded position), variance ρ²·d² (closedloop.learn)
+        self.rho2 = np.broadcast_to(np.asarray(deviation_var, float), (2,)).copy()
         self.L = [np.asarray(ir.factor, float) if use_feature_var else np.zeros((ir.mean.size, 0))
                   for ir in irs]
         self.n2, self.n3 = int(n2), int(n3)
@@ -266,6 +270,8 @@ class TwinPredictor:
         if self.kv2[a]:
             v = np.diff(np.concatenate([self.w[a].tail(k0, 1), dev_h])) / self.ts_s
             var = var + self.kv2[a] * v * v
+        if self.rho2[a]:
+            var = var + self.rho2[a] * (m - dev_h) ** 2
         if self.use_var and Y.shape[1]:
             # β̄ᵀΣ_ψβ̄ with the full feature covariance (as twin.model.AxisTwin.run): the
             # random part of Σ_lag c_lag x̂(t − lag), c = +β_x on x̂ lags, −β_e on e lags
@@ -583,6 +589,8 @@ def predict_trajectory(tp: TwinPredictor, cmd: np.ndarray, series: bool = False,
             if np.ndim(ref) == 2:
                 v[1:][np.any(ref[1:] != ref[:-1], axis=1)] = 0.0
             var += tp.kv2[a] * v * v
+        if tp.rho2[a]:
+            var += tp.rho2[a] * (m - w) ** 2
         # ψᵀΣ_βψ in chunks of rows, over the feature columns that are not identically zero
         # (offline with the physics prior every self-predicted error e is 0)
         use_e = bool(n3) and bool(np.any(e != 0.0))

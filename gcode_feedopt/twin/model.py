@@ -303,6 +303,18 @@ def learned_speed_noise_s(prior) -> float:
     return 0.0
 
 
+def learned_deviation_noise(prior) -> float:
+    """ρ: the part of what the twin cannot predict that ``learn`` found in proportion to the
+    dynamic error the twin predicts (σ = ρ·|predicted − commanded|: dynamics a few per cent
+    wrong); 0 when nothing was learned."""
+    if prior is None:
+        return 0.0
+    for rec in reversed(tuple(prior.learned_from)):
+        if isinstance(rec, dict) and rec.get("noise_per_deviation") is not None:
+            return float(rec["noise_per_deviation"])
+    return 0.0
+
+
 def axis_noise_mm(profile, axis: str, *, method: str = "pidd") -> float:
     """σ of what the twin of one axis cannot predict, mm, as the optimizer and an offline
     prediction use it: the level ``learn`` measured on the machine's own logs when there is

@@ -206,6 +206,63 @@ def test_an_unmodelled_lag_is_learned_as_speed_dependent_and_the_loop_keeps_the_
     assert within[0] < 0.95 <= within[1]
 
 
+def _bare_twin_and_command(tmp_path):
+    """ender3pro's x twin without its known uncertainty (no plant draw to explain anything),
+    a butterfly log's x command and the twin's open-loop mean on it."""
+    from gcode_feedopt.twin.frf import ImpulseResponse
+    from gcode_feedopt.twin.model import axis_twin
+
+    p = tmp_path / "l.csv"
+    make_log(p)
+    x = np.loadtxt(p, delimiter=",", skiprows=1)[:, 1]
+    tw = axis_twin(P, "x")
+    ir = tw.ir
+    bare = dataclasses.replace(tw, ir=ImpulseResponse(
+        ts_s=ir.ts_s, mean=ir.mean, var=np.zeros_like(ir.var), factor=np.zeros((ir.mean.size, 0))))
+    mean, _ = dataclasses.replace(bare).run(x, None, learn=False)
+    return tw, bare, x, mean
+
+
+def test_the_unexplained_level_splits_into_rest_speed_and_dynamic_error(tmp_path):
+    """Closed forms: a residual 0.1 × the twin's predicted dynamic error is ρ = 0.1; 3 ms × the
+    commanded speed is k_v = 3 ms; a 10 µm fan is a level of 10/√2 µm. Each alone."""
+    _, bare, x, mean = _bare_twin_and_command(tmp_path)
+    v = np.gradient(x) / bare.ir.ts_s
+    t = np.arange(x.size) * bare.ir.ts_s
+    lv, kv, rho = L.unexplained_level(bare, x, mean + 0.1 * (mean - x))
+    assert rho == pytest.approx(0.1, rel=1e-6) and lv < 1e-8 and kv < 1e-9
+    lv, kv, rho = L.unexplained_level(bare, x, mean + 0.003 * v)
+    assert kv == pytest.approx(0.003, rel=1e-6) and lv < 1e-8 and rho < 1e-6
+    lv, kv, rho = L.unexplained_level(bare, x, mean + 0.01 * np.sin(2 * np.pi * 31.0 * t))
+    assert lv == pytest.approx(0.01 / np.sqrt(2), rel=0.01)
+
+
+def test_a_residual_beyond_the_spread_the_twin_carries_is_counted(tmp_path):
+    """What the profile's spread explains is not counted (the twin's interval carries it): a
+    residual that is one standard draw along the spread's main direction leaves no level. Ten
+    such draws are beyond what the interval carries (χ² of its directions at 99 %: 4.65 for
+    ender3pro's 9): the part beyond it is counted, RMS (10 − 4.65)/10 of the residual."""
+    from scipy.stats import chi2
+
+    from gcode_feedopt.twin.features import factor_series
+
+    tw, _, x, _ = _bare_twin_and_command(tmp_path)
+    mean, _ = dataclasses.replace(tw).run(x, None, learn=False)
+    Y = factor_series(tw.ir, x - x[0])
+    u = np.linalg.svd(Y, full_matrices=False)[0][:, 0]
+    d2 = np.mean((mean - x) ** 2)
+    for k in (1.0, 10.0):
+        r = k * (u @ Y)
+        lv, kv, rho = L.unexplained_level(tw, x, mean + r)
+        modelled = np.sqrt(lv ** 2 + rho ** 2 * d2 + kv ** 2 * np.mean((np.gradient(x) / tw.ir.ts_s) ** 2))
+        rms = np.sqrt(np.mean(r * r))
+        if k == 1.0:
+            assert modelled < 0.01 * rms
+        else:
+            beyond = (k - np.sqrt(chi2.ppf(L.SPREAD_QUANTILE, Y.shape[0]))) / k
+            assert modelled == pytest.approx(beyond * rms, rel=0.1)
+
+
 @pytest.mark.shared_data
 def test_closed_loop_with_a_fan_converges_on_a_benchA_plant(bench_a, tmp_path):
     """The same loop on a profile built from benchA's FRFs (a machine simulated apart from this

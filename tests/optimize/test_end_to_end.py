@@ -13,9 +13,12 @@ import numpy as np
 import pytest
 
 from gcode_feedopt import pipeline
+from gcode_feedopt.closedloop.learn import learn_logs
+from gcode_feedopt.closedloop.logs import load_log
 from gcode_feedopt.optimize.methods import plan_schedule, vm_trajectory
 from gcode_feedopt.profile import load_profile
 from gcode_feedopt.profile.build import build_from_frfs
+from gcode_feedopt.vm.log import write_log
 from gcode_feedopt.vm.metrics import evaluate
 from gcode_feedopt.vm.plant import Plant
 
@@ -115,10 +118,11 @@ def test_pidd_beats_conservative_by_a_quarter_on_a_benchA_plant(bench_a, eta):
     assert m.cycle_time_s <= 0.75 * cons.cycle_time_s
 
 
-def _foreign_pidd(seed: int, tmp_path):
+def _foreign_pidd(seed: int, tmp_path, eta: float = 0.95, learn_first: bool = False):
     """pidd on a machine of tests/foreign: profile built from its FRFs as `profile build`
-    does, butterfly at 150 mm/s and 3 m/s², E_max 0.1 mm, η 0.95, executed on its own
-    physics; (schedule, metrics)."""
+    does, butterfly at 150 mm/s and 3 m/s², E_max 0.1 mm, executed on its own physics;
+    (schedule, metrics). ``learn_first``: the profile ``learn``s the encoder log (1 µm noise)
+    of a first pidd print on that machine, and the second print is judged."""
     mach = make_machine(seed)
     write_dataset(mach, tmp_path, effects=False)
     labels = json.loads((tmp_path / "labels.json").read_text())
@@ -128,7 +132,17 @@ def _foreign_pidd(seed: int, tmp_path):
                                   {a: sorted((tmp_path / "frf").glob(f"{a}_*.csv")) for a in "xy"},
                                   name=f"foreign-{seed}")
     prof = with_limits(prof, 150.0, 3000.0)
-    return _run("pidd", _butterfly(prof), prof, ForeignPlant(mach, labels), 0.1, 0.95)
+    path, plant = _butterfly(prof), ForeignPlant(mach, labels)
+    if learn_first:
+        sch, _ = _run("pidd", path, prof, plant, 0.1, eta)
+        tr = vm_trajectory(path, sch.s_mm, sch.ts_s)
+        act = plant.run(tr)
+        noise = 0.001 * np.random.default_rng(7).standard_normal((len(act), 2))
+        log = tmp_path / "first_print.csv"
+        write_log(log, tr.t_s, tr.pos_mm, act + np.column_stack([noise, np.zeros(len(act))]),
+                  tr.e_mm)
+        prof = learn_logs(prof, [load_log(log, prof)])[0]
+    return _run("pidd", path, prof, plant, 0.1, eta)
 
 
 @pytest.mark.shared_data
@@ -171,6 +185,21 @@ def test_pidd_keeps_the_tolerance_on_a_servo_with_a_slow_integral_pole(tmp_path)
     sch, m = _foreign_pidd(43, tmp_path)
     assert m.rms_gamma_mm <= 0.05 * 0.1
     assert m.within_fraction >= 0.95
+
+
+@pytest.mark.shared_data
+def test_a_foreign_servos_learned_twin_keeps_a_stringency_of_99_percent(tmp_path):
+    """A PID servo simulated apart from the twin (tests/foreign, seed 16: 3 FRFs from 1.5 Hz,
+    2.5 % noise), η 0.99, the second print planned with the first one learned. Learning
+    clipped its x step to half (the trust region) and its open-loop error on that print stayed
+    57 µm, but the level learn kept was 6 µm: the rest was put down to a plant draw 7σ out in
+    the narrowed spread, which the interval does not carry. The next print, twice as fast,
+    erred 85 µm on x against σ 8 µm and ran 98.90 % within (RMS γ 0.57 µm). Now the spread
+    explains at most its 99 % draw and the rest grows with the predicted dynamic error (ρ):
+    100 % within, 24.2 s (21.1 s before; conservative 43.5 s)."""
+    sch, m = _foreign_pidd(16, tmp_path, eta=0.99, learn_first=True)
+    assert m.rms_gamma_mm <= 0.01 * 0.1
+    assert m.within_fraction >= 0.99
 
 
 def test_where_the_tolerance_does_not_bind_pidd_is_the_kinematic_plan():
