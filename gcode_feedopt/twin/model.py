@@ -277,42 +277,37 @@ def axis_prior(profile, axis: str, *, method: str = "pidd") -> tuple[np.ndarray,
     return mu, shift_invariant_cov(cov, tw.n2)
 
 
+def _learned(prior, key: str):
+    """The value ``key`` of the last record of ``Prior.learned_from`` that has one (the
+    profile's YAML carries the records as they are), or None."""
+    if prior is None:
+        return None
+    for rec in reversed(tuple(prior.learned_from)):
+        if isinstance(rec, dict) and rec.get(key) is not None:
+            return float(rec[key])
+    return None
+
+
 def learned_noise_mm(prior) -> float | None:
     """The level of what the twin cannot predict that ``learn`` measured on this axis's logs
     (``closedloop.learn``: the RMS of the open-loop residual once the weights and the plant
     draw have explained what they can), mm; None when nothing was learned. It is kept in the
-    last record of ``Prior.learned_from`` (``noise_level_mm``), which the profile's YAML
-    carries as it is."""
-    if prior is None:
-        return None
-    for rec in reversed(tuple(prior.learned_from)):
-        if isinstance(rec, dict) and rec.get("noise_level_mm") is not None:
-            return float(rec["noise_level_mm"])
-    return None
+    last record of ``Prior.learned_from`` (``noise_level_mm``)."""
+    return _learned(prior, "noise_level_mm")
 
 
 def learned_speed_noise_s(prior) -> float:
     """k_v, s: the part of what the twin cannot predict that ``learn`` found to grow with the
     axis's commanded speed v (σ = k_v·|v|: an unmodelled lag, which ``diagnose`` can name);
     0 when nothing was learned."""
-    if prior is None:
-        return 0.0
-    for rec in reversed(tuple(prior.learned_from)):
-        if isinstance(rec, dict) and rec.get("noise_per_speed_s") is not None:
-            return float(rec["noise_per_speed_s"])
-    return 0.0
+    return _learned(prior, "noise_per_speed_s") or 0.0
 
 
 def learned_deviation_noise(prior) -> float:
     """ρ: the part of what the twin cannot predict that ``learn`` found in proportion to the
     dynamic error the twin predicts (σ = ρ·|predicted − commanded|: dynamics a few per cent
     wrong); 0 when nothing was learned."""
-    if prior is None:
-        return 0.0
-    for rec in reversed(tuple(prior.learned_from)):
-        if isinstance(rec, dict) and rec.get("noise_per_deviation") is not None:
-            return float(rec["noise_per_deviation"])
-    return 0.0
+    return _learned(prior, "noise_per_deviation") or 0.0
 
 
 def axis_noise_mm(profile, axis: str, *, method: str = "pidd") -> float:
