@@ -165,6 +165,12 @@ def stop_pool(pool: ProcessPoolExecutor) -> None:
     # worker at this moment (between its waitpid and setting the exit code, the process
     # looks alive to every other thread): keep it and join it below
     manager = getattr(pool, "_executor_manager_thread", None)
+    # the call queue's feeder thread may be blocked writing a large task into the pipe of a
+    # worker we are about to stop; at exit multiprocessing joins that thread without a
+    # timeout, and the run hung after its "stopped by SIGTERM" line (tests/test_signals.py,
+    # once in three CI runs, 2026-11-27): nothing queued is wanted any more
+    with contextlib.suppress(Exception):
+        pool._call_queue.cancel_join_thread()
     pool.shutdown(wait=False, cancel_futures=True)
     for p in procs:
         with contextlib.suppress(Exception):
