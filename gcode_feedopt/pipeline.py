@@ -225,6 +225,9 @@ def optimize_file(in_path, out_path, profile, opts: Options, progress=None) -> R
     say = progress or (lambda stage: None)
     in_path = pathlib.Path(in_path)
     out_path = pathlib.Path(out_path) if out_path is not None else in_path
+    if opts.accel == "file":
+        # the file's own settings: its accelerations, and the firmware's and its own junctions
+        profile = firmware.firmware_junctions(profile)
     run = _Run(in_path=in_path, out_path=out_path, profile=profile, opts=opts,
                req=PlanRequest.from_options(profile, opts),
                targets=check_run_outputs(in_path, out_path, opts))
@@ -278,6 +281,7 @@ class _Run:
     fw_out: float = 0.0
     fw_in_raised: float = 0.0
     fw_in_plan: float = 0.0
+    fw_in_accel: float = 0.0
     executed: dict | None = None
     keep: bool = False
 
@@ -364,9 +368,18 @@ def _time_both(run: _Run, say) -> None:
     run.fw_out = estimate_time_s(run.out_program, configured, replay=run.out_replay)
     run.fw_in_raised = (run.fw_in if configured is profile
                         else estimate_time_s(program, profile, replay=run.file_replay))
-    # ... and at the plan's accelerations over the file's own (--accel plan)
+    # ... and at the plan's accelerations and junctions over the file's own (--accel plan)
     run.fw_in_plan = (run.fw_in_raised if run.override is None
                       else estimate_time_s(program, profile, replay=run.replay))
+    # ... and at the plan's accelerations with the firmware's and the file's own junctions
+    # (the time split's share of each)
+    run.fw_in_accel = run.fw_in_plan
+    own = firmware.firmware_junctions(profile)
+    if own is not profile:
+        raw = firmware.Replay(program, own)
+        run.fw_in_accel = estimate_time_s(
+            program, own, replay=raw.overridden(firmware.accel_override(program, own,
+                                                                        run.opts.accel, raw)))
     run.wall["firmware"] = time.perf_counter() - t0
 
 
@@ -424,6 +437,7 @@ def _report(run: _Run) -> Report:
         extra={"input_time_same_limits_s": run.t_in,
                "input_time_profile_limits_s": run.fw_in_raised,
                "input_time_plan_accel_s": run.fw_in_plan,
+               "input_time_plan_accel_own_junctions_s": run.fw_in_accel,
                "accel_lines": result.accel_lines, "accel_override_lines": result.override_lines,
                **({"executed": run.executed} if run.executed is not None else {}),
                **{k: info[k] for k in ("optimizer", "window_status", "fallback_windows",
@@ -436,7 +450,7 @@ def _report(run: _Run) -> Report:
                                     for a, t in info["accel_search"]]}
                   if info.get("accel_search") else {})})
     rep.extra["time_split_s"] = time_split(
-        fw_in=fw_in, fw_in_raised=run.fw_in_plan, t_in=run.t_in,
+        fw_in=fw_in, fw_in_raised=run.fw_in_accel, fw_in_junctions=run.fw_in_plan, t_in=run.t_in,
         fw_out=fw_in if keep else fw_out, plan_s=sched.duration_s,
         kinematic_s=_kinematic_time(sched, run.path, profile, req, run.fw_limits), keep=keep)
     return rep
@@ -472,13 +486,15 @@ def _notes(run: _Run, rep: Report) -> None:
         n_src = len(override.sources)
         rep.notes.append(
             f"--accel plan: {n_src} line{'s' if n_src != 1 else ''} of the file set "
-            f"accelerations below the plan's ({', '.join(kinds)}); after each (after the homing "
+            f"accelerations{' or junctions' if override.junction else ''} below the plan's "
+            f"({', '.join(kinds)}); after each (after the homing "
             f"that follows it, if any) the file sets the plan's again "
             f"({run.replay.firmware.describe_accels(override)}; {result.override_lines} lines, "
-            f"junction settings and retraction accelerations kept), and the file's own after "
-            f"the last "
+            f"{'' if override.junction else 'junction settings and '}retraction accelerations "
+            f"kept), and the file's own after the last "
             f"move; the input alone would take {run.fw_in_plan:.1f} s at the plan's "
-            "accelerations; --accel file keeps the file's")
+            f"accelerations{' and junctions' if override.junction else ''}; --accel file "
+            "keeps the file's")
         tower = next((i for i, ln in enumerate(program.lines)
                       if ln.lstrip()[:12].upper() == b"TUNING_TOWER"), None)
         if tower is not None:
@@ -537,18 +553,22 @@ def _kinematic_time(sched, path, profile, req: PlanRequest, fw_limits) -> float:
                            fw_limits=fw_limits).duration_s
 
 
-def time_split(*, fw_in: float, fw_in_raised: float, t_in: float, fw_out: float, plan_s: float,
-               kinematic_s: float, keep: bool) -> dict:
+def time_split(*, fw_in: float, fw_in_raised: float, fw_in_junctions: float, t_in: float,
+               fw_out: float, plan_s: float, kinematic_s: float, keep: bool) -> dict:
     """Where the time went, s (negative: saved), summing to output − input exactly:
 
     - ``limits``: the original run at the plan's limits instead of as the printer is
       configured (the acceleration and maxima our file sets before its first move) and, under
       ``--accel plan``, at the plan's accelerations instead of the file's own lower ones
-      (``fw_in_raised``: the input timed so);
+      (``fw_in_raised``: the input timed so, with the firmware's and the file's own
+      junction settings);
+    - ``junctions``: the original run at the plan's junction settings (firmware.plan_junction:
+      the hardware's speed step; ``fw_in_junctions``: the input timed at the plan's
+      accelerations and junctions) instead of the file's and the firmware's own (0 where the
+      profile states no hardware limit: the firmware's rule is kept, lowered only where a
+      stretch is slowed);
     - ``feed``: the firmware's plan under the speed policy against the slicer's feeds (0 under
       ``--speed slicer``, where no move is faster than sliced);
-    - ``junctions``: 0: the plan keeps the firmware's own junction rule (junction deviation,
-      square-corner velocity, classic jerk), lowered only where a stretch is slowed;
     - ``twin``: the optimizer's plan against the firmware's own at those limits (its slow-downs
       and lower acceleration where the twin predicts the tolerance would break: ≥ 0);
     - ``firmware_vs_plan``: what the firmware model adds to the plans (the original's and
@@ -556,9 +576,9 @@ def time_split(*, fw_in: float, fw_in_raised: float, t_in: float, fw_out: float,
     A kept input (slower output not written) is all zeros."""
     if keep:
         return {k: 0.0 for k in ("limits", "feed", "junctions", "twin", "firmware_vs_plan")}
-    return {"limits": fw_in_raised - fw_in, "feed": kinematic_s - t_in, "junctions": 0.0,
-            "twin": plan_s - kinematic_s,
-            "firmware_vs_plan": (t_in - fw_in_raised) + (fw_out - plan_s)}
+    return {"limits": fw_in_raised - fw_in, "feed": kinematic_s - t_in,
+            "junctions": fw_in_junctions - fw_in_raised, "twin": plan_s - kinematic_s,
+            "firmware_vs_plan": (t_in - fw_in_junctions) + (fw_out - plan_s)}
 
 
 def feature_breakdown(path, sched, seg_feats, tolerance, ts_s: float) -> dict:

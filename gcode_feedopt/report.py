@@ -101,7 +101,9 @@ class Report:
                     "accel_override_lines") else "")
                 + f" → the plan's), feed {sp['feed']:+.1f}"
                 + (" (--speed machine)" if self.speed == "machine" else " (sliced F kept)")
-                + f", junctions {sp['junctions']:+.1f} (the firmware's rule kept), twin "
+                + f", junctions {sp['junctions']:+.1f}"
+                + (" (the file's → the plan's)" if sp["junctions"] else " (the firmware's rule kept)")
+                + ", twin "
                 f"{sp['twin']:+.1f} (slow-downs where the tolerance needs them), firmware vs "
                 f"plan {sp['firmware_vs_plan']:+.1f}")
         feats = (self.extra or {}).get("features")

@@ -42,8 +42,8 @@ from .options import AMAX, FEATURE_TOLERANCE_HELP, STRINGENCY, TOLERANCE, VMAX, 
 @click.option("--use-slicer-feed", is_flag=True, hidden=True,
               help="Old name of --speed slicer (now the default).")
 @click.option("--accel", type=click.Choice(ACCELS), default=ACCELS[0], show_default=True,
-              help="As for optimize (plan: the plan's accelerations over the file's lower "
-                   "ones; file: the file's kept).")
+              help="As for optimize (plan: the plan's accelerations and junctions over the "
+                   "file's lower ones; file: the file's kept).")
 @click.option("--allow-slower", is_flag=True,
               help="As for optimize (by default a file our plan would slow down is kept).")
 @click.option("--force", is_flag=True, help="Process files that were processed before.")

@@ -95,11 +95,12 @@ def speed_policy(speed: str, use_slicer_feed: bool) -> str:
 
 #: --accel on optimize and batch (the PrusaSlicer hook and the Cura script run optimize with
 #: its default)
-ACCEL_HELP = ("plan: the plan's accelerations (the profile's hardware limits, lowered by the twin "
-              "where the tolerance needs it) override lower ones the file sets (M204 P/T/S, M201 "
-              "X/Y, SET_VELOCITY_LIMIT ACCEL): a line after each sets the plan's again; junction "
-              "settings (M205, square corner velocity) and retraction accelerations stay the "
-              "file's. file: the file's own accelerations are kept.")
+ACCEL_HELP = ("plan: the plan's accelerations and junctions (the profile's hardware limits, "
+              "limits.axis_jerk_mm_s for junctions, lowered by the twin where the tolerance needs "
+              "it) override lower ones the file sets (M204 P/T/S, M201 X/Y, M205 X/Y/J, "
+              "SET_VELOCITY_LIMIT ACCEL/SQUARE_CORNER_VELOCITY): a line after each sets the "
+              "plan's again; retraction accelerations stay the file's. file: the file's own "
+              "accelerations and the firmware's and the file's junction settings are kept.")
 
 
 #: --feature-tolerance on optimize and batch (parsed in the command: a bad value is a

@@ -18,12 +18,13 @@ chosen by the profile's ``firmware.flavour`` (:func:`firmware_for`):
 
 from __future__ import annotations
 
-from .base import Firmware, Limits
+from .base import Firmware, Limits, plan_junction
 from .blocks import Blocks, build_blocks
 from .klipper import Klipper
 from .marlin import Marlin
 from .override import (ACCELS, AccelOverride, accel_override, as_configured,
-                       override_restore_texts, plan_accels, raises_configured)
+                       firmware_junctions, override_restore_texts, plan_accels,
+                       raises_configured)
 from .replay import (AccelClamp, AccelSettings, MoveLimits, Replay, accel_clamp, accel_settings,
                      move_limits)
 from .variants import LIMIT_COMMANDS, by_flavour, firmware_for
@@ -31,5 +32,5 @@ from .variants import LIMIT_COMMANDS, by_flavour, firmware_for
 __all__ = ["ACCELS", "AccelClamp", "AccelOverride", "AccelSettings", "Blocks", "Firmware",
            "Klipper", "LIMIT_COMMANDS", "Limits", "Marlin", "MoveLimits", "Replay", "accel_clamp",
            "accel_override", "accel_settings", "as_configured", "build_blocks", "by_flavour",
-           "firmware_for", "move_limits", "override_restore_texts", "plan_accels",
-           "raises_configured"]
+           "firmware_for", "firmware_junctions", "move_limits", "override_restore_texts",
+           "plan_accels", "plan_junction", "raises_configured"]

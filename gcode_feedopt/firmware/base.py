@@ -58,21 +58,36 @@ class Limits:
                       self.extrude_factor)
 
     def set_fields(self, fields: dict) -> None:
-        """Set ``fields`` ({field: value}; ``x``, ``y``: M201 X, Y)."""
+        """Set ``fields`` ({field: value}; ``x``, ``y``: M201 X, Y; ``jerk_x``, ``jerk_y``:
+        classic jerk M205 X, Y, where it is in force)."""
         for f, v in fields.items():
             if f in ("x", "y"):
                 self.max_accel[f] = v
+            elif f in ("jerk_x", "jerk_y"):
+                if self.jerk is not None:
+                    self.jerk[f[-1]] = v
             else:
                 setattr(self, f, v)
 
+    def get_field(self, f: str):
+        """The value of field ``f`` (as :meth:`set_fields` names them; None: classic jerk is
+        not in force)."""
+        if f in ("x", "y"):
+            return self.max_accel[f]
+        if f in ("jerk_x", "jerk_y"):
+            return None if self.jerk is None else self.jerk[f[-1]]
+        return getattr(self, f)
+
 
 def initial_limits(profile) -> Limits:
-    """The limits before the first line of a file: the profile's firmware values."""
+    """The limits before the first line of a file: the profile's firmware values, the
+    junction settings raised to the plan's (:func:`plan_junction`)."""
     fw = profile.firmware
+    pj = plan_junction(profile)
     return Limits(accel_print=fw.accel_mm_s2, accel_travel=fw.travel_accel_mm_s2,
                   accel_retract=fw.accel_mm_s2, max_accel=dict(fw.max_accel_mm_s2),
-                  max_feed=dict(fw.max_feed_mm_s), jd=fw.junction_deviation_mm,
-                  scv=fw.square_corner_velocity_mm_s,
+                  max_feed=dict(fw.max_feed_mm_s), jd=pj.get("jd", fw.junction_deviation_mm),
+                  scv=pj.get("scv", fw.square_corner_velocity_mm_s),
                   min_cruise_ratio=fw.minimum_cruise_ratio,
                   velocity=max(fw.max_feed_mm_s["x"], fw.max_feed_mm_s["y"]))
 
@@ -98,6 +113,33 @@ def plan_xy_accels(profile) -> tuple:
     return tuple(min(lim.axis_amax_mm_s2[a], lim.amax_mm_s2, fw.max_accel_mm_s2[a]) for a in "xy")
 
 
+def plan_junction(profile) -> dict:
+    """The junction settings the plan runs at, from the machine's hardware limit J on an
+    axis's instantaneous speed change (``limits.axis_jerk_mm_s``); {} when the profile states
+    none (the firmware's and the file's own settings hold):
+
+    - ``jerk_x``, ``jerk_y``: classic jerk (Marlin ``M205 X Y``), J of each axis;
+    - ``jd``: the junction deviation δ whose speed step stays within J: at a turn of φ the
+      junction speed is v² = a·δ·c/(1 − c), c = cos(φ/2), and the velocity changes by
+      2v·sin(φ/2), so |Δv|² = 4·a·δ·c·(1 + c) < 8·a·δ: δ = J²/(8·a), J the smaller axis's,
+      at the plan's highest acceleration a (a stretch slowed to r²·a steps by r·J);
+    - ``scv``: Klipper's square corner velocity; its δ is scv²(√2 − 1)/a, so
+      |Δv|² < 8(√2 − 1)·scv² at any acceleration: scv = J/√(8(√2 − 1)).
+
+    Rounded down to what the written lines say (δ to 0.001 mm, scv to 0.1 mm/s), and never
+    below the firmware's own."""
+    lim, fw = profile.limits, profile.firmware
+    if lim.axis_jerk_mm_s is None:
+        return {}
+    jx, jy = float(lim.axis_jerk_mm_s["x"]), float(lim.axis_jerk_mm_s["y"])
+    j = min(jx, jy)
+    a = min(max(fw.accel_mm_s2, fw.travel_accel_mm_s2), lim.amax_mm_s2)
+    jd = math.floor(j * j / (8.0 * a) * 1000.0 + 1e-9) / 1000.0
+    scv = math.floor(j / math.sqrt(8.0 * SCV_JD) * 10.0 + 1e-9) / 10.0
+    return {"jerk_x": jx, "jerk_y": jy, "jd": max(jd, fw.junction_deviation_mm),
+            "scv": max(scv, fw.square_corner_velocity_mm_s)}
+
+
 def fmt_setting(v: float) -> str:
     """A setting as the override's lines write it: three decimals, trailing zeros dropped."""
     return f"{v:.3f}".rstrip("0").rstrip(".")
@@ -116,6 +158,11 @@ class Firmware(ABC):
     restore_sets_clamp: bool = False
     #: the commands the writer's added lines may start with (gcode.verify checks them)
     limit_commands: tuple = ()
+    #: the junction settings (fields of :func:`plan_junction`) the firmware follows and
+    #: ``--accel plan`` raises where the file lowers them
+    junction_fields: tuple = ()
+    #: (field, profile ``firmware`` key) of the junction setting a file starts with
+    start_junction: tuple = ()
 
     # -- the settings replay --------------------------------------------------------------
     @abstractmethod

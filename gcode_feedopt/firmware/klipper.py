@@ -182,6 +182,8 @@ class Klipper(Firmware):
     axis_max_accel = False
     restore_sets_clamp = True
     limit_commands = ("SET_VELOCITY_LIMIT",)
+    junction_fields = ("scv",)
+    start_junction = ("scv", "square_corner_velocity_mm_s")
 
     # -- the settings replay --------------------------------------------------------------
     def apply_event(self, lim: Limits, ev) -> None:
@@ -215,7 +217,11 @@ class Klipper(Firmware):
     def lowered(self, ev, plan: dict) -> dict:
         a = accel_set(ev)
         vals = {} if a is None else {"accel_print": a, "accel_travel": a}
-        return {f: plan[f] for f, v in vals.items() if v < plan[f]}
+        if ev.name == "SET_VELOCITY_LIMIT":
+            v = ev.params.get("SQUARE_CORNER_VELOCITY")
+            if isinstance(v, float) and v >= 0:
+                vals["scv"] = v
+        return {f: plan[f] for f, v in vals.items() if f in plan and v < plan[f]}
 
     def plan_accels(self, profile) -> tuple[float, float, tuple]:
         """The one accel within both axes' limits."""
@@ -224,12 +230,17 @@ class Klipper(Firmware):
         return a, a, xy
 
     def override_texts(self, fields: dict) -> list[str]:
-        """``SET_VELOCITY_LIMIT ACCEL=..``."""
+        """``SET_VELOCITY_LIMIT ACCEL=.. SQUARE_CORNER_VELOCITY=..`` (those ``fields`` sets)."""
         a = fields.get("accel_print", fields.get("accel_travel"))
-        return [f"SET_VELOCITY_LIMIT ACCEL={fmt_setting(a)}"]
+        parts = ([f"ACCEL={fmt_setting(a)}"] if a is not None else []) + (
+            [f"SQUARE_CORNER_VELOCITY={fmt_setting(fields['scv'])}"] if "scv" in fields else [])
+        return ["SET_VELOCITY_LIMIT " + " ".join(parts)] if parts else []
 
     def describe_accels(self, ov) -> str:
-        return f"ACCEL {ov.accel_print_mm_s2:g} mm/s²"
+        out = f"ACCEL {ov.accel_print_mm_s2:g} mm/s²"
+        if "scv" in ov.junction:
+            out += f"; junctions SQUARE_CORNER_VELOCITY {ov.junction['scv']:g} mm/s"
+        return out
 
     # -- per-move caps --------------------------------------------------------------------
     def e_only_accel(self, lim: Limits) -> float:
@@ -422,15 +433,23 @@ class Klipper(Firmware):
         return f"SET_VELOCITY_LIMIT ACCEL={_fmt(vals[0], 3)}"
 
     def plan_limits_texts(self, fw, settings, mi: int, raised: dict) -> list[str]:
-        """``SET_VELOCITY_LIMIT ACCEL`` where the configured accel is lower."""
+        """``SET_VELOCITY_LIMIT ACCEL`` where the configured accel is lower, and
+        ``SQUARE_CORNER_VELOCITY`` where the plan's is above the firmware's
+        (firmware.plan_junction)."""
         p = float(settings.accel_print_mm_s2[mi])
+        scv = float(settings.scv_mm_s[mi])
         conf_a = fw.configured_accel_mm_s2
+        parts = []
         if conf_a is not None and p > conf_a:
             raised["accel"] = True
-            return [f"SET_VELOCITY_LIMIT ACCEL={_fmt(p, 3)}"]
-        return []
+            parts.append(f"ACCEL={_fmt(p, 3)}")
+        if scv > fw.square_corner_velocity_mm_s:
+            raised["junction"] = True
+            parts.append(f"SQUARE_CORNER_VELOCITY={fmt_setting(scv)}")
+        return ["SET_VELOCITY_LIMIT " + " ".join(parts)] if parts else []
 
     def configured_texts(self, fw, raised: dict) -> list[str]:
-        if raised["accel"]:
-            return [f"SET_VELOCITY_LIMIT ACCEL={_fmt(fw.configured_accel_mm_s2, 3)}"]
-        return []
+        parts = ([f"ACCEL={_fmt(fw.configured_accel_mm_s2, 3)}"] if raised["accel"] else []) + (
+            [f"SQUARE_CORNER_VELOCITY={fmt_setting(fw.square_corner_velocity_mm_s)}"]
+            if raised.get("junction") else [])
+        return ["SET_VELOCITY_LIMIT " + " ".join(parts)] if parts else []

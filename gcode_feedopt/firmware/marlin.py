@@ -23,6 +23,8 @@ class Marlin(Firmware):
     flavour = "marlin"
     axis_max_accel = True
     limit_commands = ("M201", "M204", "M205")
+    junction_fields = ("jd", "jerk_x", "jerk_y")
+    start_junction = ("jd", "junction_deviation_mm")
 
     # -- the settings replay --------------------------------------------------------------
     def apply_event(self, lim: Limits, ev) -> None:
@@ -81,7 +83,13 @@ class Marlin(Firmware):
             vals = {L.lower(): p[L] for L in "XY" if isinstance(p.get(L), float)}
         elif n == "SET_VELOCITY_LIMIT" and isinstance(p.get("ACCEL"), float):
             vals = {"accel_print": p["ACCEL"], "accel_travel": p["ACCEL"]}
-        return {f: plan[f] for f, v in vals.items() if v < plan[f]}
+        elif n == "M205":
+            # as apply_event reads it: J switches to junction deviation, else X/Y classic jerk
+            if "J" in p:
+                vals = {"jd": p["J"]} if isinstance(p["J"], float) else {}
+            else:
+                vals = {f"jerk_{L.lower()}": p[L] for L in "XY" if isinstance(p.get(L), float)}
+        return {f: plan[f] for f, v in vals.items() if f in plan and v < plan[f]}
 
     def plan_accels(self, profile) -> tuple[float, float, tuple]:
         fw, lim = profile.firmware, profile.limits
@@ -90,7 +98,8 @@ class Marlin(Firmware):
                 xy)
 
     def override_texts(self, fields: dict) -> list[str]:
-        """``M204 P.. T..`` and ``M201 X.. Y..`` (those of them ``fields`` sets)."""
+        """``M204 P.. T..``, ``M201 X.. Y..``, ``M205 X.. Y..`` (classic jerk) and ``M205 J..``
+        (those of them ``fields`` sets)."""
         g = fmt_setting
         out = []
         pt = [f"{L}{g(fields[f])}" for L, f in (("P", "accel_print"), ("T", "accel_travel"))
@@ -100,11 +109,25 @@ class Marlin(Firmware):
         xy = [f"{L}{g(fields[L.lower()])}" for L in "XY" if L.lower() in fields]
         if xy:
             out.append("M201 " + " ".join(xy))
+        jerk = [f"{L}{g(fields['jerk_' + L.lower()])}" for L in "XY"
+                if "jerk_" + L.lower() in fields]
+        if jerk:
+            out.append("M205 " + " ".join(jerk))
+        if "jd" in fields:
+            out.append(f"M205 J{g(fields['jd'])}")
         return out
 
     def describe_accels(self, ov) -> str:
-        return (f"M204 P{ov.accel_print_mm_s2:g} T{ov.accel_travel_mm_s2:g}, M201 "
-                f"X{ov.max_accel_xy_mm_s2[0]:g} Y{ov.max_accel_xy_mm_s2[1]:g} mm/s²")
+        out = (f"M204 P{ov.accel_print_mm_s2:g} T{ov.accel_travel_mm_s2:g}, M201 "
+               f"X{ov.max_accel_xy_mm_s2[0]:g} Y{ov.max_accel_xy_mm_s2[1]:g} mm/s²")
+        j = ov.junction
+        parts = ["M205 " + " ".join(f"{L}{j['jerk_' + L.lower()]:g}" for L in "XY"
+                                     if "jerk_" + L.lower() in j) + " mm/s (classic jerk)"
+                 ] if "jerk_x" in j or "jerk_y" in j else []
+        parts += [f"M205 J{j['jd']:g} mm"] if "jd" in j else []
+        if parts:
+            out += "; junctions " + ", ".join(parts)
+        return out
 
     # -- per-move caps --------------------------------------------------------------------
     def e_only_accel(self, lim: Limits) -> float:
@@ -269,7 +292,8 @@ class Marlin(Firmware):
         return "M201 " + " ".join(f"{a}{_fmt(v, 3)}" for a, v in zip("XYZ", vals))
 
     def plan_limits_texts(self, fw, settings, mi: int, raised: dict) -> list[str]:
-        """``M201 X Y`` then ``M204 P R T``, those the configuration holds lower."""
+        """``M201 X Y`` then ``M204 P R T``, those the configuration holds lower, and ``M205 J``
+        where the plan's junction deviation is above the firmware's (firmware.plan_junction)."""
         st, out = settings, []
         conf_a, conf_m = fw.configured_accel_mm_s2, fw.configured_max_accel_mm_s2
         p, t = float(st.accel_print_mm_s2[mi]), float(st.accel_travel_mm_s2[mi])
@@ -282,6 +306,10 @@ class Marlin(Firmware):
         if conf_a is not None and max(p, t, r) > conf_a:
             out.append(f"M204 P{_fmt(p, 3)} R{_fmt(r, 3)} T{_fmt(t, 3)}")
             raised["accel"] = True
+        if (st.jd_mm is not None and np.isnan(st.jerk_xy_mm_s[mi][0])
+                and float(st.jd_mm[mi]) > fw.junction_deviation_mm):
+            out.append(f"M205 J{fmt_setting(float(st.jd_mm[mi]))}")
+            raised["junction"] = True
         return out
 
     def configured_texts(self, fw, raised: dict) -> list[str]:
@@ -292,6 +320,8 @@ class Marlin(Firmware):
         if raised["accel"]:
             a = _fmt(fw.configured_accel_mm_s2, 3)
             out.append(f"M204 P{a} R{a} T{a}")
+        if raised.get("junction"):
+            out.append(f"M205 J{fmt_setting(fw.junction_deviation_mm)}")
         return out
 
 

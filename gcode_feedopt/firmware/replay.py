@@ -59,6 +59,8 @@ class AccelSettings:
     max_accel_xy_mm_s2: np.ndarray | None = None
     #: (M,) M204 R in force (Marlin's E-only moves; Klipper ignores M204 R)
     accel_retract_mm_s2: np.ndarray | None = None
+    #: (M,) Marlin's junction deviation M205 J in force
+    jd_mm: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -157,7 +159,8 @@ class Replay:
         macc = np.array([[q.max_accel["x"], q.max_accel["y"]] for q in snaps]).reshape(-1, 2)[si]
         return AccelSettings(fwv.flavour, acc_p, acc_t, jerk[si],
                              np.array([q.scv for q in snaps])[si], macc,
-                             np.array([q.accel_retract for q in snaps])[si])
+                             np.array([q.accel_retract for q in snaps])[si],
+                             np.array([q.jd for q in snaps])[si])
 
     def accel_clamp(self, axis_amax_mm_s2: dict) -> AccelClamp | None:
         """:class:`AccelClamp` of the program under the plan's axis limits (plan.kinematic

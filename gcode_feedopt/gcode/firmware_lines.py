@@ -22,10 +22,21 @@ from __future__ import annotations
 
 from ..firmware import by_flavour
 
-#: the comments on the lines of ``--accel plan``: after a file line lowering an acceleration,
-#: and after the last move
+#: the comments on the lines of ``--accel plan``: after a file line lowering an acceleration
+#: (or a junction setting), and after the last move
 _OVERRIDE_WHY = b" ; gcode-feedopt: the plan's acceleration (--accel plan)"
+_OVERRIDE_JUNCTION_WHY = b" ; gcode-feedopt: the plan's junctions (--accel plan)"
 _RESTORE_WHY = b" ; gcode-feedopt: the file's own acceleration again"
+_RESTORE_JUNCTION_WHY = b" ; gcode-feedopt: the file's own junctions again"
+
+
+def override_why(text: str, restore: bool = False) -> bytes:
+    """The comment on one line of ``--accel plan`` (``text``: its command)."""
+    junction = text.startswith("M205") or (
+        "SQUARE_CORNER_VELOCITY" in text and "ACCEL=" not in text)
+    if restore:
+        return _RESTORE_JUNCTION_WHY if junction else _RESTORE_WHY
+    return _OVERRIDE_JUNCTION_WHY if junction else _OVERRIDE_WHY
 
 
 class _AccelState:
@@ -114,17 +125,31 @@ class _ClampState:
 
 class _PlanLimits:
     """The acceleration limits the plan is timed with, where the printer as its owner
-    configured it runs lower ones (profile ``firmware.configured_*``): set before the first
-    re-timed move — Marlin ``M201 X Y`` then ``M204 P R T``, Klipper ``SET_VELOCITY_LIMIT
-    ACCEL`` — with the values the firmware model has in force there (the profile's, then the
-    file's own lines), and the configured values back after the last move. In between, the
-    file's own settings and our slowed stretches start from what the plan assumed."""
+    configured it runs lower ones (profile ``firmware.configured_*``), and the junction
+    setting, where the plan's is above the firmware's (firmware.plan_junction): set before
+    the first re-timed move — Marlin ``M201 X Y`` then ``M204 P R T`` and ``M205 J``, Klipper
+    ``SET_VELOCITY_LIMIT ACCEL SQUARE_CORNER_VELOCITY`` — with the values the firmware model
+    has in force there (the profile's, then the file's own lines), and the configured values
+    back after the last move. In between, the file's own settings and our slowed stretches
+    start from what the plan assumed."""
+
+    #: the junction setting a file starts with -> the settings' array of it
+    _START = {"jd": "jd_mm", "scv": "scv_mm_s"}
+
+    @staticmethod
+    def needed(fw, settings) -> bool:
+        """Some of the plan's limits may be above the printer's as configured."""
+        if fw.configured_accel_mm_s2 is not None or fw.configured_max_accel_mm_s2 is not None:
+            return True
+        field, key = by_flavour(fw.flavour).start_junction
+        vals = getattr(settings, _PlanLimits._START[field])
+        return vals is not None and len(vals) > 0 and float(vals.max()) > getattr(fw, key)
 
     def __init__(self, fw, settings):
         self.fw, self.st = fw, settings
         self.variant = by_flavour(fw.flavour)
         self.done = False
-        self.raised = {"max": False, "accel": False}
+        self.raised = {"max": False, "accel": False, "junction": False}
         self.lines = 0
 
     def before_first(self, mi: int, ending: bytes) -> list[bytes]:

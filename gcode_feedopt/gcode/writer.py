@@ -43,8 +43,7 @@ import numpy as np
 
 from .. import __version__
 from ..firmware import override_restore_texts
-from .firmware_lines import (_OVERRIDE_WHY, _RESTORE_WHY, _AccelState, _ClampState,
-                             _PlanLimits)
+from .firmware_lines import _AccelState, _ClampState, _PlanLimits, override_why
 from .metadata import MetadataUpdater
 from .motion_lines import _Emitter, _fmt
 from .path import Path
@@ -171,9 +170,9 @@ class _Run:
                     for k in np.flatnonzero(self.slowed).tolist():
                         self.one_speed[k] = math.nan
         self.clamp_state = _ClampState(clamp) if clamp is not None else None
-        self.plan_limits = (_PlanLimits(fw, settings) if settings is not None and (
-            fw.configured_accel_mm_s2 is not None or fw.configured_max_accel_mm_s2 is not None)
-            else None)
+        self.plan_limits = (_PlanLimits(fw, settings)
+                            if settings is not None and _PlanLimits.needed(fw, settings)
+                            else None)
         self.ov_lines = override.lines if override is not None else {}
         self.n_override = 0
         self.last_new = -1  # index in ``out`` after the last re-timed line
@@ -344,7 +343,7 @@ class _Run:
         if i in self.ov_lines and _ending(raw):
             # the file lowers an acceleration below the plan's: the plan's again
             for text in self.ov_lines[i]:
-                self.out.append(text.encode() + _OVERRIDE_WHY + _ending(raw))
+                self.out.append(text.encode() + override_why(text) + _ending(raw))
                 self.tags.append((T_ACCEL, -1))
             self.n_override += len(self.ov_lines[i])
         f_word = _feed_only(raw)
@@ -374,7 +373,7 @@ class _Run:
             # the file's own accelerations back after the last motion line and what restores
             # the slowed stretches' settings and the clamp there
             at = _after_last_move(self.tags, last, self.moves[last].line_no)
-            lines = [t.encode() + _RESTORE_WHY + first_ending
+            lines = [t.encode() + override_why(t, restore=True) + first_ending
                      for t in override_restore_texts(self.override)]
             self._insert(at, lines)
             self.n_override += len(lines)

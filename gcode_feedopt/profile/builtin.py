@@ -98,7 +98,7 @@ def ender3pro() -> MachineProfile:
                     axis_vmax_mm_s={"x": 500.0, "y": 500.0, "z": 5.0, "e": 25.0},
                     axis_amax_mm_s2={"x": 3000.0, "y": 3000.0, "z": 100.0, "e": 5000.0},
                     tolerance_mm=0.1, stringency=0.95, max_volumetric_mm3_s=12.0,
-                    filament_diameter_mm=1.75)
+                    filament_diameter_mm=1.75, axis_jerk_mm_s={"x": 20.0, "y": 20.0})
     firmware = Firmware(
         flavour="marlin", g91_relative_e=True, accel_mm_s2=3000.0, travel_accel_mm_s2=3000.0,
         max_accel_mm_s2={"x": 3000.0, "y": 3000.0, "z": 100.0, "e": 5000.0},
@@ -123,7 +123,11 @@ def ender3pro() -> MachineProfile:
             "limits": "Kim & Okwudire Sec. 6.1: V_max 70 mm/s, A_max 3 m/s^2, E_max 0.1 mm, eta 95 %. "
                       "max_volumetric_mm3_s 12: what the stock MK8-style hotend is commonly quoted to "
                       "melt in PLA at 200-210 C (10-15 mm^3/s); set yours (it only acts under "
-                      "--speed machine)",
+                      "--speed machine). axis_jerk_mm_s 20: the largest instantaneous X/Y speed "
+                      "change Marlin lets M205 set on its Ender-3 configurations "
+                      "(LIMITED_JERK_EDITING: MAX_JERK_EDIT_VALUES 20, twice the default classic "
+                      "jerk of 10 mm/s); the plan's junctions stay within it (classic jerk 20, "
+                      "junction deviation 20^2/(8*3000) = 0.016 mm) where the twin allows",
             "firmware": "Marlin 2 defaults of the Ender-3 Pro configuration for feed (X/Y 500, Z 5, "
                         "E 25 mm/s) and firmware retraction (3 mm at 45 mm/s); the stock firmware "
                         "limits X/Y acceleration to 500 mm/s^2 (configured_*): the plan is timed at "

@@ -234,6 +234,8 @@ def parse_profile(data, origin: str, base_dir: pathlib.Path | None) -> MachinePr
                                          allow_none=True),
         filament_diameter_mm=ls.getfloat("filament_diameter_mm", 1.75, above=0.5, maxval=5),
         feature_tolerance_mm=_feature_tolerance(ls, origin),
+        axis_jerk_mm_s=(_axis_dict(ls, "axis_jerk_mm_s", ("x", "y"), above=0, maxval=1000)
+                        if ls.has("axis_jerk_mm_s") else None),
     )
     ls.check_unknown()
     fs = top.section("firmware")
@@ -366,6 +368,8 @@ def profile_to_dict(profile: MachineProfile, frf_paths: dict | None = None) -> d
         d["firmware"]["instantaneous_corner_velocity_mm_s"] = F.instantaneous_corner_velocity_mm_s
     if L.max_volumetric_mm3_s is not None:
         d["limits"]["max_volumetric_mm3_s"] = L.max_volumetric_mm3_s
+    if L.axis_jerk_mm_s is not None:
+        d["limits"]["axis_jerk_mm_s"] = dict(L.axis_jerk_mm_s)
     if L.feature_tolerance_mm:
         d["limits"]["feature_tolerance_mm"] = {
             k: ("none" if v == float("inf") else v) for k, v in L.feature_tolerance_mm.items()}

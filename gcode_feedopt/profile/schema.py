@@ -31,6 +31,13 @@ class Limits:
         feature_tolerance_mm: E_max per slicer feature (gcode.features.FEATURES), e.g.
             ``{outer_wall: 0.05, infill: 0.3}``; features not named, and untagged files, keep
             ``tolerance_mm``; ``travel`` has none unless named. Empty: one tolerance.
+        axis_jerk_mm_s: the largest instantaneous change of an axis's speed the motors and
+            frame take, mm/s, ``x`` and ``y`` (what the hardware does, apart from what the
+            firmware is configured to): the junctions the plan may run at (firmware.base
+            .plan_junction: classic jerk ``M205 X Y``; a junction deviation or square corner
+            velocity whose largest per-axis speed step stays within it), lowered by the twin
+            where the tolerance needs it. None: the firmware's and the file's own junction
+            settings hold.
     """
 
     vmax_mm_s: float
@@ -43,6 +50,7 @@ class Limits:
     max_volumetric_mm3_s: float | None = None
     filament_diameter_mm: float = 1.75
     feature_tolerance_mm: dict = field(default_factory=dict)
+    axis_jerk_mm_s: dict | None = None
 
 
 @dataclass(frozen=True)

@@ -22,10 +22,12 @@ from gcode_feedopt.profile import load_profile
 from gcode_feedopt.vm.firmware import estimate_time_s
 
 # the printer runs the profile's limits as its configuration (no configured_* lines to set
-# and restore them around the file: tests/gcode/test_writer_configured.py)
+# and restore them around the file, no hardware junction limit above the firmware's:
+# tests/gcode/test_writer_configured.py, tests/gcode/test_writer_junctions.py)
 MARLIN = dataclasses.replace(load_profile("ender3pro"), firmware=dataclasses.replace(
     load_profile("ender3pro").firmware, configured_accel_mm_s2=None,
-    configured_max_accel_mm_s2=None))
+    configured_max_accel_mm_s2=None), limits=dataclasses.replace(
+    load_profile("ender3pro").limits, axis_jerk_mm_s=None))
 KLIPPER = dataclasses.replace(MARLIN, firmware=dataclasses.replace(
     MARLIN.firmware, flavour="klipper", g91_relative_e=False, square_corner_velocity_mm_s=5.0,
     minimum_cruise_ratio=0.0))

@@ -30,6 +30,8 @@ pytestmark = pytest.mark.shared_data
 HEAD = 8000
 OURS = b"; gcode-feedopt: the plan's acceleration (--accel plan)"
 BACK = b"; gcode-feedopt: the file's own acceleration again"
+OURS_J = b"; gcode-feedopt: the plan's junctions (--accel plan)"
+BACK_J = b"; gcode-feedopt: the file's own junctions again"
 MOTION = (b"G0 ", b"G1 ", b"G2 ", b"G3 ")
 
 #: sha256 of the output without its ident line (line 2), kinematic, default speeds, made by
@@ -81,8 +83,13 @@ def check_common(rep, src: bytes, data: bytes, profile):
     assert k == len(want)
     sp = rep.extra["time_split_s"]
     assert sum(sp.values()) == pytest.approx(rep.output_time_s - rep.input_time_s, abs=1e-6)
-    # the file's own accelerations overridden count under ``limits``
-    assert sp["limits"] == pytest.approx(rep.extra["input_time_plan_accel_s"] - rep.input_time_s)
+    # the file's own accelerations overridden count under ``limits``, its junction settings
+    # (and the firmware's) under ``junctions``
+    ex = rep.extra
+    assert sp["limits"] == pytest.approx(ex["input_time_plan_accel_own_junctions_s"]
+                                         - rep.input_time_s)
+    assert sp["junctions"] == pytest.approx(ex["input_time_plan_accel_s"]
+                                            - ex["input_time_plan_accel_own_junctions_s"])
     out = read_program(data, "out")
     t_out = estimate_time_s(out, firmware.as_configured(profile))
     assert t_out == pytest.approx(rep.output_time_s, rel=1e-9)
@@ -120,17 +127,30 @@ def test_prusaslicer_mini_benchy(tmp_path):
             while lines[j].endswith(OURS):
                 j -= 1
             got.append((lines[j], ln[:-len(OURS)].rstrip()))
-    assert got == expect and len(got) == rep.extra["accel_override_lines"] - 2
+    assert got == expect
+    # its classic jerk (M205 X8 Y8) gives way to the hardware's speed step (ender3pro: 20)
+    # (after the G29 that follows it, before the first move)
+    mine = [k for k, ln in enumerate(lines) if ln.endswith(OURS_J)]
+    assert [lines[k] for k in mine] == [b"M205 X20 Y20 " + OURS_J]
+    g29 = next(k for k, ln in enumerate(lines) if ln.startswith(b"G29"))
+    jerk = next(k for k, ln in enumerate(lines) if ln.startswith(b"M205 X8"))
+    first = next(k for k, ln in enumerate(lines) if ln.startswith(MOTION) and k > g29)
+    assert jerk < g29 < mine[0] < first
     assert [ln[:-len(BACK)].rstrip() for ln in lines if ln.endswith(BACK)] == [
         b"M204 P1000 T2500", b"M201 X2500 Y2500"]
+    assert [ln[:-len(BACK_J)].rstrip() for ln in lines if ln.endswith(BACK_J)] == [
+        b"M205 X8 Y8"]
+    assert len(got) == rep.extra["accel_override_lines"] - 4
+    assert rep.extra["time_split_s"]["junctions"] < -0.005 * rep.input_time_s
     # the firmware model reading the raw lines arrives at the plan's values on every move
-    # from the first to the last; retraction, Z and jerk stay the file's
+    # from the first to the last (jerk: 20, the kinematic plan slows no stretch); retraction
+    # and Z stay the file's
     lim = firmware.move_limits(out, firmware.as_configured(profile))
     moving = slice(next(i for i, mv in enumerate(out.moves) if mv.line_no > 300), None)
     assert set(lim.accel_mm_s2[moving].tolist()) == {3000.0}
     assert set(lim.max_accel_mm_s2[moving, 0].tolist()) == {3000.0}
     assert set(lim.e_accel_mm_s2[moving].tolist()) == {1250.0}
-    assert set(lim.jerk_mm_s[moving, 0].tolist()) == {8.0}
+    assert set(lim.jerk_mm_s[moving, 0].tolist()) == {20.0}
     # after the file the printer is as its owner configured it (ender3pro: 500)
     snaps = firmware.Replay(out, profile).snaps
     assert (snaps[-1].accel_print, snaps[-1].max_accel["x"]) == (500.0, 500.0)
@@ -271,7 +291,10 @@ def test_the_twin_keeps_the_tolerance_at_the_plans_accelerations(tmp_path):
     ex = rep.extra["executed"]
     assert ex["within_fraction"] >= rep.stringency
     assert ex["time_s"] == pytest.approx(rep.plan_time_s, rel=0.015)
-    assert rep.extra["accel_override_lines"] == 101
+    # 97 lines after the file's M204 lines and 2 after its G29 (99), 1 after its M205 X8 Y8
+    # (the hardware's jerk), and the restores of its own M204, M201 and M205 after the last
+    # move
+    assert rep.extra["accel_override_lines"] == 103
 
 
 def test_which_lines_lower_and_what_we_write():

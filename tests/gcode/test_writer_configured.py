@@ -48,12 +48,14 @@ def ours(data: bytes) -> list[tuple[int, bytes]]:
 def test_stock_printer_runs_the_plan(tmp_path):
     rep, data = run(tmp_path, CURA, SHIPPED)
     lines = ours(data)
+    # the junction deviation too: the hardware's 20 mm/s speed step at 3000 mm/s² is
+    # 20²/(8·3000) = 0.0167 mm, written 0.016, where the firmware runs 0.013
     assert [ln.split(b" ;")[0] for _, ln in lines] == [
-        b"M201 X3000 Y3000", b"M204 P3000 R3000 T3000", b"M201 X500 Y500",
-        b"M204 P500 R500 T500"]
+        b"M201 X3000 Y3000", b"M204 P3000 R3000 T3000", b"M205 J0.016", b"M201 X500 Y500",
+        b"M204 P500 R500 T500", b"M205 J0.013"]
     text = data.splitlines()
     moves = [k for k, ln in enumerate(text) if ln.startswith((b"G0 ", b"G1 "))]
-    assert lines[1][0] < moves[0] and lines[2][0] == moves[-1] + 1
+    assert lines[2][0] < moves[0] and lines[3][0] == moves[-1] + 1
     # a firmware starting from its configuration runs the written file as planned ...
     out = read_program(data, "out")
     t_stock = estimate_time_s(out, stock(SHIPPED))
@@ -71,6 +73,7 @@ def test_stock_printer_runs_the_plan(tmp_path):
     snaps = firmware.Replay(out, SHIPPED).snaps
     assert snaps[-1].accel_print == snaps[-1].accel_travel == 500.0
     assert (snaps[-1].max_accel["x"], snaps[-1].max_accel["y"]) == (500.0, 500.0)
+    assert snaps[-1].jd == 0.013
 
 
 def test_lines_carry_what_the_file_set_before_its_first_move(tmp_path):
@@ -94,12 +97,29 @@ def test_klipper_sets_its_one_accel(tmp_path):
     kl = dataclasses.replace(SHIPPED, firmware=dataclasses.replace(
         SHIPPED.firmware, flavour="klipper", g91_relative_e=False, configured_max_accel_mm_s2=None))
     _, data = run(tmp_path, BUTTERFLY.read_bytes(), kl)
+    # and the square corner velocity whose speed step is the hardware's 20 mm/s:
+    # 20/√(8(√2 − 1)) = 10.99, written 10.9, where the printer runs 5
     assert [ln.split(b" ;")[0] for _, ln in ours(data)] == [
-        b"SET_VELOCITY_LIMIT ACCEL=3000", b"SET_VELOCITY_LIMIT ACCEL=500"]
+        b"SET_VELOCITY_LIMIT ACCEL=3000 SQUARE_CORNER_VELOCITY=10.9",
+        b"SET_VELOCITY_LIMIT ACCEL=500 SQUARE_CORNER_VELOCITY=5"]
 
 
 def test_no_lines_where_the_printer_runs_the_profile(tmp_path):
     as_profile = dataclasses.replace(SHIPPED, firmware=dataclasses.replace(
-        SHIPPED.firmware, configured_accel_mm_s2=None, configured_max_accel_mm_s2=None))
+        SHIPPED.firmware, configured_accel_mm_s2=None, configured_max_accel_mm_s2=None),
+        limits=dataclasses.replace(SHIPPED.limits, axis_jerk_mm_s=None))
     _, data = run(tmp_path, BUTTERFLY.read_bytes(), as_profile)
     assert ours(data) == []
+
+
+def test_only_the_junction_where_the_printer_runs_the_profiles_accelerations(tmp_path):
+    """The printer is configured to the plan's accelerations but to its firmware's junction
+    deviation (0.013 mm), below the hardware's speed step: the junction alone is set and
+    given back, and a printer starting from its configuration runs the plan."""
+    as_profile = dataclasses.replace(SHIPPED, firmware=dataclasses.replace(
+        SHIPPED.firmware, configured_accel_mm_s2=None, configured_max_accel_mm_s2=None))
+    rep, data = run(tmp_path, BUTTERFLY.read_bytes(), as_profile)
+    assert [ln.split(b" ;")[0] for _, ln in ours(data)] == [b"M205 J0.016", b"M205 J0.013"]
+    t_stock = estimate_time_s(read_program(data, "out"), firmware.as_configured(as_profile))
+    assert t_stock == pytest.approx(rep.plan_time_s, rel=2e-3)
+    assert rep.output_time_s == pytest.approx(t_stock, rel=1e-9)

@@ -8,10 +8,12 @@ import pytest
 
 from gcode_feedopt.gcode.reader import read_program
 from gcode_feedopt.profile import load_profile
-from gcode_feedopt.firmware import Replay, build_blocks
+from gcode_feedopt.firmware import Replay, build_blocks, firmware_junctions
 from gcode_feedopt.vm.firmware import estimate_time_s, execute
 
-MARLIN = load_profile("ender3pro")  # accel 3000, JD 0.013, max feed x/y 500
+# accel 3000, JD 0.013, max feed x/y 500: the firmware's own junction settings, not the plan's
+# from the hardware's speed step (tests/firmware/test_junctions.py)
+MARLIN = firmware_junctions(load_profile("ender3pro"))
 KLIPPER = dataclasses.replace(MARLIN, firmware=dataclasses.replace(
     MARLIN.firmware, flavour="klipper", g91_relative_e=False, square_corner_velocity_mm_s=5.0,
     minimum_cruise_ratio=0.0))
