@@ -30,6 +30,10 @@ class AxisTwin:
         n2, n3: feature orders. sigma2: σ_ε², mm².
         mu, cov: current weight mean (d,) and covariance (d, d).
         use_feature_var: False gives the deterministic-feature twin (the paper's DD method).
+        kv2, rho2: what ``learn`` found the twin cannot predict in proportion to the commanded
+            speed (variance kv2·v², s²) and to the dynamic error it predicts (rho2·d², d the
+            predicted minus the commanded position): added to an open-loop prediction's
+            variance, as the optimizer's predictors add them (optimize.predictors).
     """
 
     ir: ImpulseResponse
@@ -40,6 +44,8 @@ class AxisTwin:
     cov: np.ndarray
     use_feature_var: bool = True
     curvature: str = "moment"
+    kv2: float = 0.0
+    rho2: float = 0.0
 
     def run(self, x_cmd: np.ndarray, x_meas: np.ndarray | None = None, *, learn: bool = True,
             sigma_eps_mm: float | None = None, offset_mm: np.ndarray | None = None,
@@ -150,6 +156,10 @@ class AxisTwin:
             elif not measured:
                 e[t] = m_t - xm[t]
         self.mu, self.cov = mu, 0.5 * (cov + cov.T)
+        if not measured and (self.kv2 or self.rho2):
+            v = np.zeros(T)
+            v[1:] = np.diff(w) / self.ir.ts_s
+            var = var + self.kv2 * v * v + self.rho2 * (mean - w) ** 2
         return mean + ref, np.sqrt(np.maximum(var, 0.0))
 
     def _run_joint(self, M, Y, x_dev, lag_x, lag_e, maxlag, ref, warmup=0):
@@ -361,6 +371,8 @@ def axis_twin(profile, axis: str, *, method: str = "pidd") -> AxisTwin:
     prior, no learning intended), ``dd`` (no known uncertainty, zero prior mean, broad prior)."""
     tw = profile.twin
     mu, cov = axis_prior(profile, axis, method=method)
+    prior = None if method == "dd" else tw.priors.get(axis)
     return AxisTwin(ir=twin_impulse(profile, axis, method=method), n2=tw.n2, n3=tw.n3,
                     sigma2=axis_noise_mm(profile, axis, method=method) ** 2, mu=mu, cov=cov,
-                    use_feature_var=method != "dd")
+                    use_feature_var=method != "dd", kv2=learned_speed_noise_s(prior) ** 2,
+                    rho2=learned_deviation_noise(prior) ** 2)

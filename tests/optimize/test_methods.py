@@ -53,6 +53,38 @@ def test_twin_predictor_equals_the_twin_run_window_by_window(ender):
         np.testing.assert_allclose(pr.pred_std[a], std, rtol=1e-9)
 
 
+def test_predict_offline_gives_the_optimizers_interval_once_learned(ender):
+    """A profile ``learn`` wrote (a level σ_r, a part k_v growing with the commanded speed, a
+    part ρ in proportion to the predicted dynamic error): ``predict`` without measurements
+    (twin.model.AxisTwin.run, what `gcode-feedopt predict` shows for a plan) has the
+    optimizer's variance, σ_r² + k_v²v² + ρ²d² on top of the known uncertainty — not σ_r
+    alone (before: narrower than what the optimizer planned with)."""
+    import dataclasses
+
+    from gcode_feedopt.profile.schema import Prior
+    from gcode_feedopt.twin.model import axis_prior
+
+    rec = {"noise_level_mm": 0.004, "noise_per_speed_s": 0.002, "noise_per_deviation": 0.3}
+    priors = {ax: Prior(*axis_prior(ender, ax, method="pidd"), learned_from=(rec,))
+              for ax in ("x", "y")}
+    learned = dataclasses.replace(ender, twin=dataclasses.replace(ender.twin, priors=priors))
+    cmd = _trajectory(ender.ts_s)
+    pr = make_twin_predictor(learned, "pidd", learn=False)
+    for k in range(0, cmd.shape[0], 30):
+        pr.commit(k, cmd[k:k + 30])
+    for a, ax in enumerate("xy"):
+        tw = axis_twin(learned, ax, method="pidd")
+        mean, std = tw.run(cmd[:, a], None, learn=False)
+        np.testing.assert_allclose(pr.pred_mean[a], mean, atol=1e-10)
+        np.testing.assert_allclose(pr.pred_std[a], std, rtol=1e-9)
+        bare = dataclasses.replace(axis_twin(learned, ax, method="pidd"), kv2=0.0, rho2=0.0)
+        _, std0 = bare.run(cmd[:, a], None, learn=False)
+        v = np.diff(cmd[:, a], prepend=cmd[0, a]) / ender.ts_s
+        np.testing.assert_allclose(std ** 2, std0 ** 2 + 0.002 ** 2 * v ** 2
+                                   + 0.3 ** 2 * (mean - cmd[:, a]) ** 2, rtol=1e-9)
+        assert np.median(std / std0) > 1.5
+
+
 def test_twin_predictor_jacobian_is_the_derivative(ender):
     cmd = _trajectory(ender.ts_s, 200)
     pr = make_twin_predictor(ender, "pidd", learn=False)
