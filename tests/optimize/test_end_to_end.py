@@ -118,11 +118,13 @@ def test_pidd_beats_conservative_by_a_quarter_on_a_benchA_plant(bench_a, eta):
     assert m.cycle_time_s <= 0.75 * cons.cycle_time_s
 
 
-def _foreign_pidd(seed: int, tmp_path, eta: float = 0.95, learn_first: bool = False):
+def _foreign_pidd(seed: int, tmp_path, eta: float = 0.95, learn_first: bool = False,
+                  records: list | None = None):
     """pidd on a machine of tests/foreign: profile built from its FRFs as `profile build`
     does, butterfly at 150 mm/s and 3 m/s², E_max 0.1 mm, executed on its own physics;
     (schedule, metrics). ``learn_first``: the profile ``learn``s the encoder log (1 µm noise)
-    of a first pidd print on that machine, and the second print is judged."""
+    of a first pidd print on that machine, and the second print is judged (``records``: gets
+    learn's records)."""
     mach = make_machine(seed)
     write_dataset(mach, tmp_path, effects=False)
     labels = json.loads((tmp_path / "labels.json").read_text())
@@ -141,7 +143,9 @@ def _foreign_pidd(seed: int, tmp_path, eta: float = 0.95, learn_first: bool = Fa
         log = tmp_path / "first_print.csv"
         write_log(log, tr.t_s, tr.pos_mm, act + np.column_stack([noise, np.zeros(len(act))]),
                   tr.e_mm)
-        prof = learn_logs(prof, [load_log(log, prof)])[0]
+        prof, recs = learn_logs(prof, [load_log(log, prof)])
+        if records is not None:
+            records.extend(recs)
     return _run("pidd", path, prof, plant, 0.1, eta)
 
 
@@ -196,10 +200,17 @@ def test_a_foreign_servos_learned_twin_keeps_a_stringency_of_99_percent(tmp_path
     the narrowed spread, which the interval does not carry. The next print, twice as fast,
     erred 85 µm on x against σ 8 µm and ran 98.90 % within (RMS γ 0.57 µm). Now the spread
     explains at most its 99 % draw and the rest grows with the predicted dynamic error (ρ):
-    100 % within, 24.2 s (21.1 s before; conservative 43.5 s)."""
-    sch, m = _foreign_pidd(16, tmp_path, eta=0.99, learn_first=True)
+    100 % within, 24.2 s (21.1 s before; conservative 43.5 s). And learn no longer keeps a
+    step that makes that print's open-loop prediction worse (the clipped step took x from 54
+    to 57 µm): halved to none (x keeps its prior weights and draw, narrowed, and learns its
+    levels; y's step stays whole, 32 → 3.8 µm), 100 % within in 21.3 s."""
+    recs = []
+    sch, m = _foreign_pidd(16, tmp_path, eta=0.99, learn_first=True, records=recs)
     assert m.rms_gamma_mm <= 0.01 * 0.1
     assert m.within_fraction >= 0.99
+    for r in recs:
+        assert r["prediction_rms_mm"]["after"] <= r["prediction_rms_mm"]["before"], r
+    assert [r["step_scale"] for r in recs if r["axis"] == "x"][0] < 0.5
 
 
 def test_where_the_tolerance_does_not_bind_pidd_is_the_kinematic_plan():
