@@ -476,10 +476,15 @@ def _notes(run: _Run, rep: Report) -> None:
             [("accel", fw_c.configured_accel_mm_s2)] if fw_c.configured_accel_mm_s2 else []) + (
             [(f"max {a}", fw_c.configured_max_accel_mm_s2[a]) for a in "xy"]
             if fw_c.configured_max_accel_mm_s2 and run.replay.firmware.axis_max_accel else []))
+        conf = [f"{conf} mm/s²"] if conf else []
+        if any(ln.startswith("M205 J") for ln in result.plan_limit_lines):
+            conf.append(f"junction deviation {fw_c.junction_deviation_mm:g} mm")
+        if any("SQUARE_CORNER_VELOCITY" in ln for ln in result.plan_limit_lines):
+            conf.append(f"square corner velocity {fw_c.square_corner_velocity_mm_s:g} mm/s")
         rep.notes.append(f"the file sets {' and '.join(result.plan_limit_lines)} before its first "
                          f"move (the plan's limits; {profile.name}'s firmware is configured to "
-                         f"{conf} mm/s²) and the configured values again after its last; the "
-                         f"input alone would take {run.fw_in_raised:.1f} s at those limits, "
+                         f"{', '.join(conf)}) and the configured values again after its last; "
+                         f"the input alone would take {run.fw_in_raised:.1f} s at those limits, "
                          f"{fw_in:.1f} s as configured")
     if override is not None and not keep:
         kinds = sorted({name for _, name in override.sources})

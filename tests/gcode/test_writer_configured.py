@@ -63,7 +63,10 @@ def test_stock_printer_runs_the_plan(tmp_path):
     # ... and without our lines it would not (the plan needs 3000 mm/s²)
     bare = b"".join(ln + b"\n" for ln in text if b"; gcode-feedopt:" not in ln)
     assert estimate_time_s(read_program(bare, "bare"), stock(SHIPPED)) > 1.2 * t_stock
-    assert any("sets M201 X3000 Y3000 and M204 P3000 R3000 T3000" in n for n in rep.notes)
+    assert any("sets M201 X3000 Y3000 and M204 P3000 R3000 T3000 and M205 J0.016 before its "
+               "first move (the plan's limits; ender3pro's firmware is configured to accel 500, "
+               "max x 500, max y 500 mm/s², junction deviation 0.013 mm)" in n
+               for n in rep.notes), rep.notes
     # the summary times both files as the printer is configured
     assert rep.output_time_s == pytest.approx(t_stock, rel=1e-9)
     assert rep.input_time_s == pytest.approx(
@@ -120,6 +123,8 @@ def test_only_the_junction_where_the_printer_runs_the_profiles_accelerations(tmp
         SHIPPED.firmware, configured_accel_mm_s2=None, configured_max_accel_mm_s2=None))
     rep, data = run(tmp_path, BUTTERFLY.read_bytes(), as_profile)
     assert [ln.split(b" ;")[0] for _, ln in ours(data)] == [b"M205 J0.016", b"M205 J0.013"]
+    assert any("sets M205 J0.016 before its first move (the plan's limits; ender3pro's firmware "
+               "is configured to junction deviation 0.013 mm)" in n for n in rep.notes), rep.notes
     t_stock = estimate_time_s(read_program(data, "out"), firmware.as_configured(as_profile))
     assert t_stock == pytest.approx(rep.plan_time_s, rel=2e-3)
     assert rep.output_time_s == pytest.approx(t_stock, rel=1e-9)
