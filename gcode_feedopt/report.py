@@ -64,6 +64,12 @@ class Report:
     def to_json(self) -> str:
         return json.dumps(self.to_dict(), indent=2, default=float)
 
+    def _and_junctions(self) -> str:
+        """The words ' and junctions' where the plan's junctions differ from the file's and
+        the firmware's (the time split's junctions term; firmware.plan_junction)."""
+        sp = (self.extra or {}).get("time_split_s") or {}
+        return " and junctions" if sp.get("junctions") else ""
+
     def summary(self) -> str:
         """A few lines a person reads at a glance."""
         lines = [f"gcode-feedopt: {self.input}: {hms(self.input_time_s)} -> {hms(self.output_time_s)} "
@@ -71,8 +77,8 @@ class Report:
                  f"  method {self.method}, machine {self.machine}, speed {self.speed}"
                  f"{' (no move above its sliced F)' if self.speed == 'slicer' else ''}, "
                  f"accel {self.accel}"
-                 + (" (the plan's accelerations over the file's)" if self.accel == "plan"
-                    else " (the file's own accelerations kept)")
+                 + (f" (the plan's accelerations{self._and_junctions()} over the file's)"
+                    if self.accel == "plan" else " (the file's own accelerations and junctions kept)")
                  + f", {self.moves_changed} of "
                  f"{self.moves} moves re-timed, {self.lines_written} lines written"
                  + (" (dry run: nothing written)" if self.dry_run else "")]

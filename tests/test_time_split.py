@@ -70,3 +70,6 @@ def test_the_junction_term_is_zero_where_the_files_junctions_are_kept(tmp_path):
     rep = optimize_file(src, tmp_path / "out.gcode", prof, Options(allow_slower=True))
     assert rep.extra["time_split_s"]["junctions"] == 0.0
     assert "the firmware's rule kept" in rep.summary()
+    assert "accel plan (the plan's accelerations over the file's)" in rep.summary()
+    rep, _ = _split(src, tmp_path)
+    assert "accel plan (the plan's accelerations and junctions over the file's)" in rep.summary()

@@ -269,7 +269,7 @@ def test_cli_and_batch_take_the_policy(tmp_path):
     r = CliRunner().invoke(cli, [str(tmp_path / "in.gcode"), "-o", str(one), "--machine",
                                  "ender3pro", "--method", "kinematic"])
     assert r.exit_code == 0, r.output
-    assert "accel plan (the plan's accelerations over the file's)" in r.output
+    assert "accel plan (the plan's accelerations and junctions over the file's)" in r.output
     assert b"M204 P3000 T3000 " + OURS in one.read_bytes()
     r = CliRunner().invoke(cli, [str(tmp_path / "in.gcode"), "-o", str(one), "--machine",
                                  "ender3pro", "--accel", "fast"])
