@@ -62,15 +62,8 @@ MAX_PRED_RMS_SIGMAS = 50.0
 SPREAD_QUANTILE = 0.99
 
 
-def open_loop_rms(twin, x_cmd, x_meas, warmup: int = 0) -> float:
-    """RMS of the twin's prediction without measurements (what the optimizer plans with),
-    after the ``warmup`` samples of a log that starts mid-motion."""
-    t = dataclasses.replace(twin)
-    mean, _ = t.run(x_cmd, None, learn=False)
-    return float(np.sqrt(np.mean((mean[warmup:] - np.asarray(x_meas)[warmup:]) ** 2)))
-
-
-def unexplained_level(twin, x_cmd, x_meas, warmup: int = 0) -> tuple[float, float, float]:
+def unexplained_level(twin, x_cmd, x_meas, warmup: int = 0,
+                      mean=None) -> tuple[float, float, float]:
     """What ``twin`` cannot predict on a log open loop (as the optimizer predicts), after the
     ``warmup`` samples, as (σ_r mm, k_v s, ρ): a variance σ_r² + k_v²·v² + ρ²·d² with v the
     commanded speed of the axis and d the twin's predicted dynamic error (predicted − commanded
@@ -92,9 +85,10 @@ def unexplained_level(twin, x_cmd, x_meas, warmup: int = 0) -> tuple[float, floa
     what they do, so a plan that asks more of the machine than the log did gets a wider
     interval where it does (seed 16 x: σ_r 13 µm, k_v 1.2 ms, ρ 0.19; the next print's
     contour error over the plan's σ has RMS 1.35, 3.48 before, and it runs 100 % within at
-    η 0.99)."""
+    η 0.99). ``mean``: the twin's open-loop prediction of ``x_cmd`` when the caller has it."""
     x_cmd = np.asarray(x_cmd, float)
-    mean, _ = dataclasses.replace(twin).run(x_cmd, None, learn=False)
+    if mean is None:
+        mean, _ = dataclasses.replace(twin).run(x_cmd, None, learn=False)
     w0 = int(warmup)
     r = np.asarray(x_meas, float)[w0:] - mean[w0:]
     if r.size < 8:
@@ -148,7 +142,10 @@ def learn_axis(profile, axis: str, x_cmd, x_meas, *, source: str = "", sha: str 
     twin = axis_twin(profile, axis, method="pidd")
     mu0, cov0 = twin.mu.copy(), twin.cov.copy()
     sigma = profile.twin.sigma_eps_mm
-    before = open_loop_rms(twin, x_cmd, x_meas, warmup)
+    # the prior twin's open-loop prediction: what the optimizer planned the log with
+    base, _ = dataclasses.replace(twin).run(x_cmd, None, learn=False)
+    meas = np.asarray(x_meas, float)[warmup:]
+    before = float(np.sqrt(np.mean((base[warmup:] - meas) ** 2)))
     if before > MAX_PRED_RMS_SIGMAS * sigma:
         raise LogError(f"{source}: the twin's prediction misses axis {axis} by {before:.3g} mm "
                        f"RMS (limit {MAX_PRED_RMS_SIGMAS:g}·σ_ε = {MAX_PRED_RMS_SIGMAS * sigma:.3g} mm); "
@@ -165,20 +162,18 @@ def learn_axis(profile, axis: str, x_cmd, x_meas, *, source: str = "", sha: str 
     r = ir0.factor.shape[1]
     z_step = getattr(twin, "z_mean", np.zeros(r))
     S_new = _sqrtm(getattr(twin, "z_cov", np.eye(r)) + FORGET * np.eye(r))
-    base, _ = dataclasses.replace(twin, mu=mu0, cov=cov0, ir=ir0).run(x_cmd, None, learn=False)
-    meas = np.asarray(x_meas, float)[warmup:]
     scale = 1.0
     for _ in range(12):
         trial = dataclasses.replace(twin, mu=mu0 + scale * step, cov=cov,
                                     ir=narrowed(ir0, scale * z_step, S_new))
         mean, _ = trial.run(x_cmd, None, learn=False)
         change = float(np.sqrt(np.mean((mean[warmup:] - base[warmup:]) ** 2)))
-        worse = float(np.sqrt(np.mean((mean[warmup:] - meas) ** 2))) > before
-        if change <= MAX_PRED_CHANGE_MM and not worse:
+        after = float(np.sqrt(np.mean((mean[warmup:] - meas) ** 2)))
+        if change <= MAX_PRED_CHANGE_MM and after <= before:
             break
         scale *= 0.5
     else:
-        scale = 0.0
+        scale, mean = 0.0, None
     clipped = scale < 1.0
     mu = mu0 + scale * step
     prior = profile.twin.priors.get(axis)
@@ -191,13 +186,15 @@ def learn_axis(profile, axis: str, x_cmd, x_meas, *, source: str = "", sha: str 
                 "sqrt_cov": [[round(float(v), 9) for v in row] for row in S0 @ S_new]}
     twin = dataclasses.replace(twin, ir=narrowed(ir0, scale * z_step, S_new))
     learned = dataclasses.replace(twin, mu=mu, cov=cov)
-    after = open_loop_rms(learned, x_cmd, x_meas, warmup)
+    if mean is None:  # no step: the learned twin's prediction, computed once here
+        mean, _ = dataclasses.replace(learned).run(x_cmd, None, learn=False)
+        after = float(np.sqrt(np.mean((mean[warmup:] - meas) ** 2)))
     history = tuple(prior.learned_from) if prior is not None else ()
     # the level of what the learned twin still cannot predict on this log, averaged (in
     # variance) with what earlier logs measured: one print cannot talk it away
     # (a fan the profile's extensions already carry as variance is not counted twice)
 
-    level_log, kv_log, rho_log = unexplained_level(learned, x_cmd, x_meas, warmup)
+    level_log, kv_log, rho_log = unexplained_level(learned, x_cmd, x_meas, warmup, mean=mean)
     level_log = math.sqrt(max(level_log ** 2 - extra_variance_mm2(profile.axes[axis].effects),
                               NOISE_FLOOR_MIN_MM ** 2))
     old_level = learned_noise_mm(prior)
