@@ -70,12 +70,15 @@ class Limits:
                 setattr(self, f, v)
 
     def get_field(self, f: str):
-        """The value of field ``f`` (as :meth:`set_fields` names them; None: classic jerk is
-        not in force)."""
+        """The value of field ``f`` in force (as :meth:`set_fields` names them): None for
+        classic jerk's fields under junction deviation, and for the junction deviation
+        ``jd`` under classic jerk (Marlin's M205 J would switch the rule)."""
         if f in ("x", "y"):
             return self.max_accel[f]
         if f in ("jerk_x", "jerk_y"):
             return None if self.jerk is None else self.jerk[f[-1]]
+        if f == "jd" and self.jerk is not None:
+            return None
         return getattr(self, f)
 
 

@@ -113,8 +113,6 @@ def accel_override(program, profile, policy: str = "plan",
     last = int(mine.si[-1])
     restore = {}
     for f in plan:
-        if f == "jd" and raw.snaps[last].jerk is not None:
-            continue  # classic jerk in force: M205 J would switch the junction rule
         file_v = raw.snaps[last].get_field(f)
         if file_v != mine.snaps[last].get_field(f):
             restore[f] = file_v

@@ -32,8 +32,7 @@ from ..plan.request import PlanRequest
 from ..plan.kinematic import (effective_limits, plan_kinematic, plan_trapezoids, planner_limits,
                               segment_plan)
 from ..twin.extensions import extra_variance_mm2, motion_offsets
-from ..twin.model import (axis_noise_mm, axis_prior, learned_deviation_noise, learned_speed_noise_s,
-                          twin_impulse)
+from ..twin.model import axis_noise_mm, axis_prior, learned_variance_terms, twin_impulse
 from ..twin.physics import memory_time_s
 from ..vm.metrics import evaluate
 from ..vm.plant import Plant
@@ -142,14 +141,11 @@ def make_twin_predictor(profile, method: str, *, learn: bool):
     priors = [axis_prior(profile, ax, method=method) for ax in ("x", "y")]
     s2 = [axis_noise_mm(profile, ax, method=method) ** 2
           + extra_variance_mm2(profile.axes[ax].effects) for ax in ("x", "y")]
-    kv2 = [0.0 if method == "dd" else learned_speed_noise_s(tw.priors.get(ax)) ** 2
-           for ax in ("x", "y")]
-    rho2 = [0.0 if method == "dd" else learned_deviation_noise(tw.priors.get(ax)) ** 2
-            for ax in ("x", "y")]
+    terms = [learned_variance_terms(profile, ax, method=method) for ax in ("x", "y")]
     return TwinPredictor(irs, tw.n2, tw.n3, s2, [p[0] for p in priors],
                          [p[1] for p in priors], use_feature_var=(method != "dd"),
-                         learn=learn and method in ("dd", "pidd"), speed_var=kv2,
-                         deviation_var=rho2)
+                         learn=learn and method in ("dd", "pidd"),
+                         speed_var=[t[0] for t in terms], deviation_var=[t[1] for t in terms])
 
 
 def _pieces(path, z_pieces: bool = True):

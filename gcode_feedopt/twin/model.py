@@ -320,6 +320,14 @@ def learned_deviation_noise(prior) -> float:
     return _learned(prior, "noise_per_deviation") or 0.0
 
 
+def learned_variance_terms(profile, axis: str, *, method: str = "pidd") -> tuple[float, float]:
+    """(k_v², ρ²) of one axis as the optimizer and an open-loop prediction add them (variance
+    k_v²·v² + ρ²·d², :func:`learned_speed_noise_s`, :func:`learned_deviation_noise`); zeros
+    for ``dd``, which starts from nothing."""
+    prior = None if method == "dd" else profile.twin.priors.get(axis)
+    return learned_speed_noise_s(prior) ** 2, learned_deviation_noise(prior) ** 2
+
+
 def axis_noise_mm(profile, axis: str, *, method: str = "pidd") -> float:
     """σ of what the twin of one axis cannot predict, mm, as the optimizer and an offline
     prediction use it: the level ``learn`` measured on the machine's own logs when there is
@@ -371,8 +379,7 @@ def axis_twin(profile, axis: str, *, method: str = "pidd") -> AxisTwin:
     prior, no learning intended), ``dd`` (no known uncertainty, zero prior mean, broad prior)."""
     tw = profile.twin
     mu, cov = axis_prior(profile, axis, method=method)
-    prior = None if method == "dd" else tw.priors.get(axis)
+    kv2, rho2 = learned_variance_terms(profile, axis, method=method)
     return AxisTwin(ir=twin_impulse(profile, axis, method=method), n2=tw.n2, n3=tw.n3,
                     sigma2=axis_noise_mm(profile, axis, method=method) ** 2, mu=mu, cov=cov,
-                    use_feature_var=method != "dd", kv2=learned_speed_noise_s(prior) ** 2,
-                    rho2=learned_deviation_noise(prior) ** 2)
+                    use_feature_var=method != "dd", kv2=kv2, rho2=rho2)
