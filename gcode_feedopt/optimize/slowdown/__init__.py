@@ -14,7 +14,8 @@ module finds a plan of the same quality with whole-file vectorized passes instea
    is F exactly; with r < 1 it is what the firmware plans once the writer tells it the cell's
    acceleration and junction rule (gcode.writer: M204/M205, SET_VELOCITY_LIMIT), so the
    written file runs as planned.
-2. **Plan.** The firmware's own look-ahead (plan.trapezoid.forward_backward and trapezoids)
+2. **Plan.** The firmware's own look-ahead (plan.trapezoid.forward_backward and trapezoids;
+   Klipper's with minimum_cruise_ratio's pseudo-accel, firmware.klipper.klipper_lookahead)
    on the scaled limits, per piece between exact stops (each starts and ends at rest and is
    sampled from its own start, as the window optimizer commits whole samples); the schedule
    is the concatenation of the pieces with their dwells.

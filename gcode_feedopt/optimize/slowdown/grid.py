@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ...firmware.klipper import klipper_lookahead
 from ...plan.kinematic import PlannerLimits
 from ...plan.trapezoid import forward_backward, trapezoids
 from ..free import ranges
@@ -21,6 +22,8 @@ class PlanGrid:
         vcap_mm_s, accel_mm_s2: (M,) F's limits of each cell.
         junction_mm_s: (M+1,) F's junction limits (inf between the cells of one segment).
         jerk_junction: (M+1,) bool, junctions F's classic jerk sets.
+        pseudo_accel_mm_s2: (M,) Klipper: minimum_cruise_ratio's pseudo-accel of each cell
+            (its move's), or None (Marlin).
         fixed: (M,) bool, cells of lines the writer must keep (never scaled).
         piece_cell: (P+1,) first cell of each piece (pieces end at exact stops).
         piece_hold: (P,) samples held at rest after each piece (its dwell).
@@ -46,6 +49,8 @@ class PlanGrid:
         if limits.jerk_junction is not None:
             jerk[first] = limits.jerk_junction
         self.jerk_junction = jerk
+        pa = limits.pseudo_accel_mm_s2
+        self.pseudo_accel_mm_s2 = None if pa is None else np.asarray(pa, float)[self.parent]
         self.fixed = np.asarray(path.fixed, bool)[self.parent]
         stop = np.asarray(path.stop_after, bool) | (np.asarray(path.dwell_after_s) > 0)
         stop[-1] = True
@@ -96,8 +101,14 @@ class PlanGrid:
         j = np.flatnonzero(inner)
         rj = np.where(self.jerk_junction[cells[j]], r[j], np.minimum(r[j - 1], r[j]))
         vj[j] = np.minimum(self.junction_mm_s[cells[j]] * rj, np.minimum(vc[j - 1], vc[j]))
-        v = forward_backward(vj, L, acc)
-        tr = trapezoids(v, L, acc, vc, np.zeros(m), 0.0)
+        if self.pseudo_accel_mm_s2 is None:
+            tr = trapezoids(forward_backward(vj, L, acc), L, acc, vc, np.zeros(m), 0.0)
+        else:
+            # Klipper: a slowed cell's ACCEL is r²·a, so its pseudo-accel a·(1 − mcr) scales
+            # alike; cells of one move reproduce the move's reduced peak (their junctions are
+            # unlimited), so the grid plans what Klipper runs
+            tr = klipper_lookahead(np.square(vj), L, acc, self.pseudo_accel_mm_s2[cells] * r * r,
+                                   vc, np.zeros(m), 0.0)
         motion = tr.motion_s
         # local times: restart the clock at every piece
         piece_of = np.repeat(np.arange(pieces.size), n_c)
