@@ -53,6 +53,26 @@ def test_one_bad_log_moves_the_prediction_by_at_most_the_bound(tmp_path, monkeyp
     assert [r for r in recs if r["axis"] == "x"][0]["step_clipped"]
 
 
+def test_a_step_that_worsens_its_own_logs_open_loop_prediction_is_refused(tmp_path):
+    """A slow 5 µm sway of x (period 4.2 s) that the twin's features do not carry: learned one
+    sample ahead with the measured errors fed back, the whole step fits it, but open loop —
+    what the optimizer plans with — it predicts this very log worse (3.49 → 4.18 µm RMS). learn
+    keeps no such step: it is halved until it does not, here to none."""
+    cmd, meas = make_log(tmp_path / "a.csv")
+    meas = meas.copy()
+    meas[:, 0] += 0.005 * np.sin(np.arange(len(cmd)) * 0.003)
+    p = tmp_path / "sway.csv"
+    write(p, cmd, meas)
+    prof, recs = L.learn_logs(P, [load_log(p, P)])
+    rec = [r for r in recs if r["axis"] == "x"][0]
+    assert rec["step_scale"] < 1.0
+    assert rec["prediction_rms_mm"]["after"] <= rec["prediction_rms_mm"]["before"]
+    before, _ = axis_twin(P, "x").run(cmd[:, 0], None, learn=False)
+    after, _ = axis_twin(prof, "x").run(cmd[:, 0], None, learn=False)
+    rms = lambda m: float(np.sqrt(np.mean((m - meas[:, 0]) ** 2)))  # noqa: E731
+    assert rms(after) <= rms(before) + 1e-9
+
+
 def test_implausible_log_refused(tmp_path):
     cmd, meas = make_log(tmp_path / "a.csv")
     meas = meas.copy()

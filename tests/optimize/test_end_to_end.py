@@ -203,14 +203,20 @@ def test_a_foreign_servos_learned_twin_keeps_a_stringency_of_99_percent(tmp_path
     100 % within, 24.2 s (21.1 s before; conservative 43.5 s). And learn no longer keeps a
     step that makes that print's open-loop prediction worse (the clipped step took x from 54
     to 57 µm): halved to none (x keeps its prior weights and draw, narrowed, and learns its
-    levels; y's step stays whole, 32 → 3.8 µm), 100 % within in 21.3 s."""
+    levels; y's step stays whole, 32 → 3.8 µm), 100 % within in 21.3 s.
+
+    Which way x goes depends on the last bits of the BLAS in use: with OpenBLAS's Haswell
+    kernels (OPENBLAS_CORETYPE=Haswell) the first print is as above and x is refused; with
+    its kernels for an AMD EPYC the first plan differs slightly, x errs 52.4 µm and its whole
+    step takes it to 10.3 µm, and the next print runs 99.33 % within in 15.7 s (RMS γ 0.28
+    µm). Both keep what this test asserts; the refusal itself is
+    tests/closedloop/test_learn.py::test_a_step_that_worsens_its_own_logs_open_loop_prediction_is_refused."""
     recs = []
     sch, m = _foreign_pidd(16, tmp_path, eta=0.99, learn_first=True, records=recs)
     assert m.rms_gamma_mm <= 0.01 * 0.1
     assert m.within_fraction >= 0.99
     for r in recs:
         assert r["prediction_rms_mm"]["after"] <= r["prediction_rms_mm"]["before"], r
-    assert [r["step_scale"] for r in recs if r["axis"] == "x"][0] < 0.5
 
 
 def test_where_the_tolerance_does_not_bind_pidd_is_the_kinematic_plan():
