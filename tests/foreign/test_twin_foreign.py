@@ -98,6 +98,9 @@ SETS = {
     # PID servo whose integral action puts a real pole at 5.9 Hz on y and 8.4 Hz on x, 8 FRFs
     # from 2 Hz in 0.5 Hz steps: a lag bounded at 20 ms (8 Hz) could not reach it
     "servo43": (43, True),
+    # PID servo whose integral action puts a real pole at 7.3 Hz on x (τ 21.8 ms, just beyond
+    # the lag's 20 ms bound), 8 FRFs from 3 Hz in 2 Hz steps, 2.1 % noise
+    "servo58": (58, True),
 }
 
 
@@ -137,22 +140,26 @@ def test_no_member_mode_below_the_measured_band(dataset):
             assert m.freq_hz.min() >= f0 * (1 - 1e-9), (ax, m.freq_hz)
 
 
-def test_a_servos_slow_real_pole_is_fitted_where_it_is(dataset):
+@pytest.mark.parametrize("which, axes", [("servo43", "xy"), ("servo58", "x")])
+def test_a_servos_slow_real_pole_is_fitted_where_it_is(which, axes, dataset):
     """A PID loop's integral action puts a real pole (with a zero beside it) a few Hz up: on
     seed 43 at 5.94 Hz (y) and 8.36 Hz (x), the eigenvalues of its own physics. With the lag
     bounded at 20 ms (a pole at ≥ 8 Hz) every member's y fit sat on the bound, the data's DC
     gain read 1.018 and the twin erred 75 µm RMS on a butterfly; the lag may now reach the
-    lowest measured frequency (never below it: nothing measured there confirms it)."""
-    out, _, prof = dataset("servo43")
-    mach = make_machine(43)
-    for ax in "xy":
+    lowest measured frequency (never below it: nothing measured there confirms it). Seed 58
+    x: 7.3 Hz, 9 % beyond the bound, where the data said so at p = 0.0014 (twin.modal,
+    ``_reach_lag``): on the bound (7.96 Hz) its twin erred 23–31 µm (its y's slow pole, at
+    14.3 Hz, is a pair of real poles with the loop's, not the lag)."""
+    out, _, prof = dataset(which)
+    mach = make_machine(SETS[which][0])
+    for ax in axes:
         A, _, _ = mach.chans[ax].ss()
         ev = np.linalg.eigvals(A)
         slow = min(abs(e.real) for e in ev if abs(e.imag) < 1e-6) / (2 * np.pi)
         f0 = float(prof.axes[ax].frf.freq_hz[0])
         poles = [1 / (2 * np.pi * m.lag_s) for m in axis_modal(prof, ax, warn=False).models]
         assert min(poles) >= f0 * (1 - 1e-9), (ax, poles)
-        assert abs(np.median(poles) / slow - 1) < 0.1, (ax, slow, poles)
+        assert abs(np.median(poles) / slow - 1) < 0.05, (ax, slow, poles)
 
 
 def test_prior_prediction_where_members_cannot_resolve_two_close_modes(dataset):
@@ -175,7 +182,7 @@ def test_prior_prediction_where_members_cannot_resolve_two_close_modes(dataset):
 
 
 @pytest.mark.parametrize("which", ["servo4", "servo8", "hotend1", "belt11", "corexy13",
-                                   "corexy0", "corexy18", "servo5", "servo43"])
+                                   "corexy0", "corexy18", "servo5", "servo43", "servo58"])
 def test_clean_logs_of_a_plant_inside_the_spread_are_none(which, dataset):
     """belt11: every clean log was named a resonance_shift x to 49.7 Hz, a move of the
     lightly damped mode inside the members' own band that the draw's first-order directions
@@ -186,7 +193,8 @@ def test_clean_logs_of_a_plant_inside_the_spread_are_none(which, dataset):
     (diagnose._ring_bar). servo5: the 6–10 µm lead its modal fit leaves on y was named
     "friction −0.010 mm" on two of three logs; friction only lags (diagnose._candidates).
     servo43: the 76–90 µm its twin erred on y (the slow pole out of the lag's reach) was named
-    a 0.12 mm fan on log_02."""
+    a 0.12 mm fan on log_02. servo58: the 23–31 µm its twin erred on x (its slow pole 9 %
+    beyond the lag's bound) was named a resonance shift to 15.2 Hz on every clean log."""
     out, labels, prof = dataset(which)
     inherent = {(e["kind"], e["axis"]) for e in labels["inherent"]}
     for e in labels["logs"]:
