@@ -16,7 +16,8 @@ one bad log cannot wreck the profile:
    (halved further, to none): the posterior learns one sample ahead, with the measured
    errors fed back, and its open-loop prediction — what the optimizer plans with — can be
    worse than the prior's on the very log it came from (tests/foreign seed 16, x: a step
-   clipped to half took the log's open-loop error from 54 to 57 µm). (A Mahalanobis bound
+   clipped to half took the log's open-loop error from 54 to 57 µm, under OpenBLAS's Haswell
+   kernels; tests/closedloop/test_learn.py builds such a log). (A Mahalanobis bound
    in weight space was tried first: the physics prior's x̂ weights have σ = 1e-4, so 3σ
    froze learning — next-part prediction RMS 0.1616 → 0.1616 mm on a 4 ms hidden delay,
    against 0.1483 mm unbounded; the step is still reported in prior σ as

@@ -81,6 +81,8 @@ class PlannerLimits:
     #: Klipper: (N,) minimum_cruise_ratio's pseudo-accel of each segment (its look-ahead gives
     #: a run of short moves one reduced peak, firmware.klipper.klipper_lookahead); None: Marlin
     pseudo_accel_mm_s2: np.ndarray | None = None
+    #: the firmware variant whose look-ahead plans within these limits (firmware.by_flavour)
+    flavour: str = "marlin"
 
 
 def planner_limits(path: Path, *, vmax_mm_s: float, axis_vmax_mm_s: dict,
@@ -104,7 +106,7 @@ def planner_limits(path: Path, *, vmax_mm_s: float, axis_vmax_mm_s: dict,
     # numbered (fixed) lines keep the slicer's speed: they are written back unchanged
     vcap = np.where(path.fixed, np.minimum(vcap, path.feed_mm_s), vcap)
     return PlannerLimits(**variant.planner_limits(path, vcap, acc, axis_amax_mm_s2, firmware,
-                                                  fw_limits))
+                                                  fw_limits), flavour=variant.flavour)
 
 
 def plan_trapezoids(path: Path, *, vmax_mm_s: float, axis_vmax_mm_s: dict,

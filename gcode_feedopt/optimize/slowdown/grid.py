@@ -6,9 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...firmware.klipper import klipper_lookahead
+from ...firmware import by_flavour
 from ...plan.kinematic import PlannerLimits
-from ...plan.trapezoid import forward_backward, trapezoids
 from ..free import ranges
 
 
@@ -24,6 +23,7 @@ class PlanGrid:
         jerk_junction: (M+1,) bool, junctions F's classic jerk sets.
         pseudo_accel_mm_s2: (M,) Klipper: minimum_cruise_ratio's pseudo-accel of each cell
             (its move's), or None (Marlin).
+        flavour: the firmware variant whose look-ahead plans the cells.
         fixed: (M,) bool, cells of lines the writer must keep (never scaled).
         piece_cell: (P+1,) first cell of each piece (pieces end at exact stops).
         piece_hold: (P,) samples held at rest after each piece (its dwell).
@@ -51,6 +51,7 @@ class PlanGrid:
         self.jerk_junction = jerk
         pa = limits.pseudo_accel_mm_s2
         self.pseudo_accel_mm_s2 = None if pa is None else np.asarray(pa, float)[self.parent]
+        self.flavour = limits.flavour
         self.fixed = np.asarray(path.fixed, bool)[self.parent]
         stop = np.asarray(path.stop_after, bool) | (np.asarray(path.dwell_after_s) > 0)
         stop[-1] = True
@@ -101,14 +102,12 @@ class PlanGrid:
         j = np.flatnonzero(inner)
         rj = np.where(self.jerk_junction[cells[j]], r[j], np.minimum(r[j - 1], r[j]))
         vj[j] = np.minimum(self.junction_mm_s[cells[j]] * rj, np.minimum(vc[j - 1], vc[j]))
-        if self.pseudo_accel_mm_s2 is None:
-            tr = trapezoids(forward_backward(vj, L, acc), L, acc, vc, np.zeros(m), 0.0)
-        else:
-            # Klipper: a slowed cell's ACCEL is r²·a, so its pseudo-accel a·(1 − mcr) scales
-            # alike; cells of one move reproduce the move's reduced peak (their junctions are
-            # unlimited), so the grid plans what Klipper runs
-            tr = klipper_lookahead(np.square(vj), L, acc, self.pseudo_accel_mm_s2[cells] * r * r,
-                                   vc, np.zeros(m), 0.0)
+        # the firmware's own look-ahead. Klipper: a slowed cell's ACCEL is r²·a, so its
+        # pseudo-accel a·(1 − mcr) scales alike; cells of one move reproduce the move's reduced
+        # peak (their junctions are unlimited), so the grid plans what Klipper runs
+        pseudo = (None if self.pseudo_accel_mm_s2 is None
+                  else self.pseudo_accel_mm_s2[cells] * r * r)
+        tr = by_flavour(self.flavour).lookahead(vj, L, acc, pseudo, vc, np.zeros(m), 0.0)
         motion = tr.motion_s
         # local times: restart the clock at every piece
         piece_of = np.repeat(np.arange(pieces.size), n_c)
