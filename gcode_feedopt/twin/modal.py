@@ -649,6 +649,36 @@ OUTLIER_FLOOR = 0.08
 OUTLIER_RATIO = 4.0
 #: The data's DC gain (fitted freely) this far from the pinned 1 is reported.
 DC_WARN = 0.01
+#: The whole set is flagged when the fit misses its members (median) by more than this many
+#: times their bin-to-bin noise and by at least ``SET_MISFIT_FLOOR``: a response that is not
+#: modes and a lag (measured through an input shaper: 12–150 times; benchA's sets and those of
+#: 50 foreign machines (seeds 0–67): 0.88–1.21 times, at most 3.1 % where the noise is 3 %).
+SET_MISFIT_RATIO = 3.0
+SET_MISFIT_FLOOR = 0.02
+
+
+def bin_noise(freq_hz, response) -> float:
+    """Relative noise level of one FRF from its own bins, without a model: each bin's
+    difference from the cubic through its two neighbours on either side (Lagrange weights
+    c_j, so the difference has variance (1 + Σ c_j²)σ² for complex noise of relative RMS σ),
+    relative to |H| (floored as the fit weights it). A cubic leaves the response's own bending
+    out to its fourth derivative (a straight line through the next bins read a 2 Hz grid's
+    0.5 % noise as 0.8 %: the 1/f² fall above a mode bends that much); the median, scaled as a
+    Rayleigh median (0.8326 σ), ignores the few bins a sharp peak bends faster than that."""
+    f = np.asarray(freq_hz, float)
+    h = np.asarray(response, complex)
+    if f.size < 5:
+        return float("nan")
+    k = np.arange(2, f.size - 2)
+    nb = np.stack([k - 2, k - 1, k + 1, k + 2])           # (4, n) neighbours
+    c = np.ones((4, k.size))
+    for i in range(4):                                   # Lagrange weights at f[k]
+        for j in range(4):
+            if i != j:
+                c[i] *= (f[k] - f[nb[j]]) / (f[nb[i]] - f[nb[j]])
+    r = h[k] - np.sum(c * h[nb], axis=0)
+    scale = np.maximum(np.abs(h[k]), RELATIVE_FLOOR * abs(h[0]))
+    return float(np.median(np.abs(r) / scale / np.sqrt(1.0 + np.sum(c * c, axis=0))) / 0.8326)
 
 
 def fit_axis(freq_hz, response, labels=(), *, axis: str = "", dc_gain: float | None = 1.0,
@@ -658,8 +688,9 @@ def fit_axis(freq_hz, response, labels=(), *, axis: str = "", dc_gain: float | N
     The order is chosen on the mean of the measurements (its noise is lower) and every member
     is then fitted from that fit. Raises ValueError for data a modal model cannot take (no
     phase); returns warnings (one line each, naming the file and the frequency) for a set it
-    explains badly: a member the others do not confirm, a dominant mode that differs between
-    repeats, a mode at the top of the band or near Nyquist, a DC gain the data put off 1."""
+    explains badly: the whole set missed alike, well beyond its own noise (``bin_noise``); a
+    member the others do not confirm, a dominant mode that differs between repeats, a mode at
+    the top of the band or near Nyquist, a DC gain the data put off 1."""
     f = np.asarray(freq_hz, float)
     R = np.atleast_2d(np.asarray(response, complex))
     labels = tuple(labels) or tuple(f"{axis or 'axis'} FRF {i + 1}" for i in range(R.shape[0]))
@@ -682,6 +713,15 @@ def fit_axis(freq_hz, response, labels=(), *, axis: str = "", dc_gain: float | N
     warn = []
     rms = np.array([ft.rms_rel for ft in fits])
     med = float(np.median(rms))
+    noise = float(np.median([bin_noise(f, row) for row in R]))
+    if med > max(SET_MISFIT_RATIO * noise, SET_MISFIT_FLOOR):
+        who = labels[0] if len(labels) == 1 else f"{labels[0]} … {labels[-1]}"
+        warn.append(f"{who}: the modal fit misses all {len(labels)} measurements alike, by "
+                    f"{100 * med:.1f} % RMS (worst at {base.worst_hz:.1f} Hz), "
+                    f"{med / max(noise, 1e-12):.0f} times their bin-to-bin noise "
+                    f"({100 * noise:.2f} %): the response is more than modes and a lag, and the "
+                    "twin errs as much; a filter in the measured path? (an input shaper: "
+                    "measure with it off, as Klipper's TEST_RESONANCES does by default)")
     for lab, ft in zip(labels, fits):
         if ft.rms_rel > max(MISFIT_RATIO * med, MISFIT_FLOOR):
             warn.append(f"{lab}: the modal fit misses this FRF by {100 * ft.rms_rel:.1f} % RMS "
