@@ -122,7 +122,9 @@ def show(name_or_path, as_json):
     for a, d in s["axes"].items():
         modes = ", ".join(f"{m['freq_hz']:.1f} Hz ζ={m['damping']:.3f}" for m in d["modes"]) or "none fitted"
         n = d.get("frf_measurements", 0)
-        click.echo(f"  {a}: {n} FRFs; modes {modes}; {d['provenance'].get('kind', '?')}")
+        shaper = p.firmware.input_shaper.get(a)
+        shaped = f"; printed through input shaper {shaper.describe()}" if shaper else ""
+        click.echo(f"  {a}: {n} FRFs; modes {modes}; {d['provenance'].get('kind', '?')}{shaped}")
     for k, v in p.provenance.items():
         click.echo(f"  provenance.{k}: {v}")
 

@@ -13,7 +13,8 @@ chosen by the profile's ``firmware.flavour`` (:func:`firmware_for`):
   (:class:`MoveLimits`) and the writer (:class:`AccelSettings`, :class:`AccelClamp`) read;
 - variants.py: the one factory, :func:`firmware_for` (:func:`by_flavour`);
 - override.py: ``--accel plan`` (:class:`AccelOverride`) and the configured printer;
-- blocks.py: the firmware's planner blocks (vm.firmware times and samples them).
+- blocks.py: the firmware's planner blocks (vm.firmware times and samples them);
+- shaper.py: the input shaper between planner and motors (what the machine receives).
 """
 
 from __future__ import annotations

@@ -16,6 +16,7 @@ import numpy as np
 import yaml
 
 from ..errors import FeedOptError, OutputError, ProfileError
+from ..firmware.shaper import TYPES as SHAPER_TYPES, Shaper
 from ..gcode.features import check_feature_tolerance
 from ..inputs import read_text
 from ..outputs import check_output, make_output_folder, write_text
@@ -189,6 +190,53 @@ def _read_prior(sec: _Section, n: int) -> Prior:
     return Prior(mu=mu, cov=cov, learned_from=learned)
 
 
+def _read_shapers(fs: _Section, flavour: str) -> dict:
+    """firmware.input_shaper: axis -> Shaper (module firmware.shaper); absent: {}."""
+    if not fs.has("input_shaper"):
+        return {}
+    sec = fs.section("input_shaper")
+    out = {}
+    for ax in ("x", "y"):
+        if not sec.has(ax):
+            continue
+        a = sec.section(ax)
+        kind = a.getchoice("type", SHAPER_TYPES)
+        centred = a.getbool("centred", flavour == "klipper")
+        if kind == "custom":
+            amps, times = a.raw("amplitudes"), a.raw("times_s")
+            ok = (isinstance(amps, list) and isinstance(times, list) and 1 <= len(amps) == len(times)
+                  and all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                          and math.isfinite(v) for v in amps + times))
+            if not ok:
+                raise a._err("amplitudes", "amplitudes and times_s must be lists of numbers of "
+                             "one length (a pulse each), e.g. [0.5, 0.5] and [0, 0.0125]")
+            if min(amps) < 0 or sum(amps) <= 0:
+                raise a._err("amplitudes", f"{amps} must be non-negative with a positive sum")
+            if min(times) < 0 or max(times) > 0.5 or any(b <= c for c, b in zip(times, times[1:])):
+                raise a._err("times_s", f"{times} must ascend strictly, within 0–0.5 s")
+            sh = Shaper("custom", 0.0, 0.0, centred, tuple(map(float, amps)), tuple(map(float, times)))
+        else:
+            sh = Shaper(kind, a.getfloat("freq_hz", above=0, maxval=1000),
+                        a.getfloat("damping_ratio", 0.1, minval=0, below=1), centred)
+        a.check_unknown()
+        out[ax] = sh
+    sec.check_unknown()
+    return out
+
+
+def _shapers_to_yaml(shapers: dict) -> dict:
+    out = {}
+    for ax, sh in shapers.items():
+        d = {"type": sh.type, "centred": bool(sh.centred)}
+        if sh.type == "custom":
+            d.update(amplitudes=[float(v) for v in sh.amplitudes],
+                     times_s=[float(v) for v in sh.times_s])
+        else:
+            d.update(freq_hz=float(sh.freq_hz), damping_ratio=float(sh.damping_ratio))
+        out[ax] = d
+    return out
+
+
 def _feature_tolerance(ls: _Section, origin: str) -> dict:
     """limits.feature_tolerance_mm: {feature: mm or 'none'} (gcode.features)."""
     v = ls.raw("feature_tolerance_mm", None)
@@ -262,6 +310,7 @@ def parse_profile(data, origin: str, base_dir: pathlib.Path | None) -> MachinePr
         configured_max_accel_mm_s2=(_axis_dict(fs, "configured_max_accel_mm_s2", ("x", "y"),
                                                above=0, maxval=1e6)
                                     if fs.has("configured_max_accel_mm_s2") else None),
+        input_shaper=_read_shapers(fs, flavour),
     )
     fs.check_unknown()
     axs = top.section("axes")
@@ -377,6 +426,8 @@ def profile_to_dict(profile: MachineProfile, frf_paths: dict | None = None) -> d
         d["firmware"]["configured_accel_mm_s2"] = F.configured_accel_mm_s2
     if F.configured_max_accel_mm_s2 is not None:
         d["firmware"]["configured_max_accel_mm_s2"] = dict(F.configured_max_accel_mm_s2)
+    if F.input_shaper:
+        d["firmware"]["input_shaper"] = _shapers_to_yaml(F.input_shaper)
     if T.priors:
         d["twin"]["priors"] = {a: _prior_to_yaml(p) for a, p in T.priors.items()}
     for a, ax in profile.axes.items():

@@ -77,6 +77,10 @@ class Firmware:
             the firmware runs the values above). The writer then sets the values above
             before the first re-timed move and restores these after the last one, so a
             printer as its owner configured it runs what was planned.
+        input_shaper: axis ("x", "y") -> firmware.shaper.Shaper the firmware applies to that
+            axis's planned motion (Klipper's [input_shaper], Marlin's M593); none: the
+            machine receives the plan as it is. The FRFs describe the machine without it
+            (Klipper's TEST_RESONANCES turns it off); the twin's input is the shaped plan.
     """
 
     flavour: str
@@ -95,6 +99,7 @@ class Firmware:
     instantaneous_corner_velocity_mm_s: float = 1.0
     configured_accel_mm_s2: float | None = None
     configured_max_accel_mm_s2: dict | None = None
+    input_shaper: dict = field(default_factory=dict)
 
 
 @dataclass(frozen=True)

@@ -116,3 +116,48 @@ def test_regeneration_matches_shipped_files_to_1e12(tmp_path):
 def test_builtins_say_priors_are_not_learned():
     p = load_profile("ender3pro")
     assert p.twin.priors == {} and p.provenance["priors"].startswith("not learned")
+
+
+def _with_shaper_yaml(tmp_path, name, shaper: dict):
+    """``name`` saved under tmp_path, then its YAML again beside it with
+    firmware.input_shaper = ``shaper`` (the FRF files stay where the first save put them)."""
+    (tmp_path / "p").mkdir(exist_ok=True)
+    src = save_profile(load_profile(name), tmp_path / "p" / f"{name}.yaml")
+    d = yaml.safe_load(open(src))
+    d["firmware"]["input_shaper"] = shaper
+    out = tmp_path / "p" / f"{name}_shaped.yaml"
+    out.write_text(yaml.safe_dump(d))
+    return out
+
+
+def test_an_input_shaper_is_read_with_the_flavours_timing_and_saved_as_read(tmp_path):
+    from gcode_feedopt.firmware.shaper import Shaper
+    klip = load_profile(_with_shaper_yaml(tmp_path, "voron24", {
+        "x": {"type": "mzv", "freq_hz": 48.2},
+        "y": {"type": "custom", "amplitudes": [0.5, 0.5], "times_s": [0.0, 0.0125]}}))
+    assert klip.firmware.input_shaper["x"] == Shaper("mzv", 48.2, 0.1, True)  # Klipper centres
+    a, t = klip.firmware.input_shaper["y"].pulses()
+    np.testing.assert_allclose(t, [-0.00625, 0.00625])
+    marlin = load_profile(_with_shaper_yaml(tmp_path, "ender3pro", {
+        "x": {"type": "zv", "freq_hz": 40, "damping_ratio": 0.05}}))
+    assert marlin.firmware.input_shaper == {"x": Shaper("zv", 40.0, 0.05, False)}  # causal
+    (tmp_path / "again").mkdir()
+    back = load_profile(save_profile(klip, tmp_path / "again" / "v.yaml"))
+    assert back.firmware == klip.firmware
+
+
+@pytest.mark.parametrize("shaper, words", [
+    ({"x": {"type": "2hump_ei", "freq_hz": 40}}, "input_shaper.x.type: '2hump_ei' is not one of"),
+    ({"x": {"type": "mzv"}}, "input_shaper.x.freq_hz: missing"),
+    ({"x": {"type": "mzv", "freq_hz": 40, "damping_ratio": 1.2}}, "damping_ratio: 1.2 must be below 1"),
+    ({"x": {"type": "custom", "amplitudes": [1, 1], "times_s": [0]}}, "lists of numbers of one length"),
+    ({"x": {"type": "custom", "amplitudes": [1, -1], "times_s": [0, 0.01]}}, "non-negative"),
+    ({"x": {"type": "custom", "amplitudes": [1, 1], "times_s": [0.01, 0]}}, "ascend strictly"),
+    ({"x": {"type": "mzv", "freq_hz": 40, "freq": 41}}, "unknown key 'firmware.input_shaper.x.freq'"),
+    ({"z": {"type": "mzv", "freq_hz": 40}}, "unknown key 'firmware.input_shaper.z'"),
+])
+def test_a_bad_input_shaper_is_one_line_naming_the_key(tmp_path, shaper, words):
+    with pytest.raises(ProfileError) as exc:
+        load_profile(_with_shaper_yaml(tmp_path, "voron24", shaper))
+    msg = str(exc.value)
+    assert words in msg and "voron24_shaped.yaml" in msg and "\n" not in msg, msg
