@@ -32,7 +32,7 @@ from gcode_feedopt.closedloop.logs import MotionLog, log_warmup
 from gcode_feedopt.profile import load_profile
 from gcode_feedopt.profile.build import build_from_frfs
 from gcode_feedopt.twin.model import axis_twin
-from gcode_feedopt.twin.physics import draw_impulses
+from gcode_feedopt.twin.physics import draw_impulses, machine_command
 from gcode_feedopt.vm.plant import respond
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
@@ -67,8 +67,10 @@ def encoder_log(name, data, prof) -> MotionLog:
 
 
 def coverage(prof, cmd, pos, w0, learn):
-    """% of samples (after the warm-up) inside the 95 % interval, per axis, as predict runs."""
+    """% of samples (after the warm-up) inside the 95 % interval, per axis, as predict runs
+    (on the machine's input: the commands through the profile's input shaper, if any)."""
     out = []
+    cmd = machine_command(prof, cmd)
     for i, ax in enumerate("xy"):
         mean, std = axis_twin(prof, ax).run(cmd[:, i], pos[:, i], learn=learn, warmup=w0)
         out.append(100 * np.mean(np.abs(pos[w0:, i] - mean[w0:]) <= Z95 * std[w0:]))
@@ -122,8 +124,9 @@ def evaluate(data=DATA, prof=None):
         d = diagnose_log(log, prof)
         dt = time.perf_counter() - t0
         prior, none = [], []
+        cmd_in = machine_command(prof, cmd)
         for i, ax in enumerate("xy"):
-            mean, _ = axis_twin(prof, ax).run(cmd[:, i], pos[:, i], learn=False, warmup=w0)
+            mean, _ = axis_twin(prof, ax).run(cmd_in[:, i], pos[:, i], learn=False, warmup=w0)
             prior.append(1e3 * np.sqrt(np.mean((pos[w0:, i] - mean[w0:]) ** 2)))
             none.append(1e3 * np.sqrt(np.mean((pos[w0:, i] - cmd[w0:, i]) ** 2)))
         rows.append({"log": name[:-4], "truth": e["effects"], "diagnosis": d.effects,

@@ -8,6 +8,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import pathlib
+import re
 import time
 from dataclasses import dataclass
 
@@ -509,6 +510,16 @@ def _notes(run: _Run, rep: Report) -> None:
                 f"{run.in_path}:{tower + 1}: the file runs TUNING_TOWER, a calibration print, and "
                 "its accelerations were overridden; what it calibrates (e.g. pressure advance) "
                 "depends on them: run it with --accel file to calibrate at the sliced ones")
+    shaping = next((i for i, ln in enumerate(program.lines)
+                    if re.match(rb"\s*(SET_INPUT_SHAPER|M593)(\s|$)", ln, re.I)), None)
+    if shaping is not None:
+        # the twin's input is the plan through the profile's shaper (twin.physics)
+        have = "; ".join(f"{a} {sh.describe()}" for a, sh in profile.firmware.input_shaper.items())
+        text = program.lines[shaping].strip().decode("ascii", "replace")
+        rep.notes.append(
+            f"{run.in_path}:{shaping + 1}: the file sets the input shaper ({text}); the twin "
+            f"planned with {profile.name}'s ({have or 'none'}, firmware.input_shaper): if the "
+            "printer runs another, state it there and plan again")
     rate = 1.0 / profile.ts_s
     if opts.mode == "sampled" and rate > profile.firmware.max_lines_per_s and not keep:
         rep.notes.append(

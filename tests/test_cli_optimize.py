@@ -229,3 +229,36 @@ def test_progress_ticker_never_hands_a_forked_worker_a_held_lock(monkeypatch):
     finally:
         p.done()
     assert "planning" in sys.stderr.getvalue()
+
+
+def _shaped_profile(tmp_path):
+    """voron24 printing through Klipper's MZV at its 45.6 Hz modes."""
+    import dataclasses
+
+    from gcode_feedopt.firmware.shaper import Shaper
+    from gcode_feedopt.profile import load_profile, save_profile
+    p = load_profile("voron24")
+    sh = {a: Shaper("mzv", 45.6, 0.1, True) for a in "xy"}
+    p = dataclasses.replace(p, name="voron24_shaped",
+                            firmware=dataclasses.replace(p.firmware, input_shaper=sh))
+    (tmp_path / "prof").mkdir()
+    return save_profile(p, tmp_path / "prof" / "voron24_shaped.yaml")
+
+
+def test_a_file_that_sets_the_input_shaper_is_told_which_the_plan_assumed(src, tmp_path):
+    lines = src.read_text().splitlines(keepends=True)
+    lines.insert(5, "SET_INPUT_SHAPER SHAPER_FREQ_X=45.6 SHAPER_FREQ_Y=45.6\n")
+    src.write_text("".join(lines))
+    res = _run([src, "-o", tmp_path / "out.gcode", "--machine", _shaped_profile(tmp_path)])
+    assert res.exit_code == 0, res.output
+    assert (f"{src}:6: the file sets the input shaper (SET_INPUT_SHAPER SHAPER_FREQ_X=45.6 "
+            "SHAPER_FREQ_Y=45.6); the twin planned with voron24_shaped's (x mzv 45.6 Hz") in res.output
+    assert "SET_INPUT_SHAPER SHAPER_FREQ_X=45.6 SHAPER_FREQ_Y=45.6\n" in (tmp_path / "out.gcode").read_text()
+
+
+def test_the_window_optimizer_refuses_a_shaped_profile_in_one_line(src, tmp_path):
+    before = src.read_bytes()
+    res = _run(["compare", src, "--machine", _shaped_profile(tmp_path), "--methods", "pidd"])
+    assert res.exit_code == 2, res.output
+    assert "does not model the firmware's input shaper" in res.output
+    assert len(res.output.strip().splitlines()) == 1 and src.read_bytes() == before

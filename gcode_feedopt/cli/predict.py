@@ -95,6 +95,7 @@ def predict(log, machine, output, no_learn):
     # heavy stages imported on use: `gcode-feedopt --help` imports every command module
     from ..closedloop.logs import edge_speeds_mm_s, log_warmup
     from ..twin.model import axis_twin
+    from ..twin.physics import machine_command
 
     prof = load_profile(machine)
     check_input(log)
@@ -111,8 +112,10 @@ def predict(log, machine, output, no_learn):
                       f"out of the summary", LogWarning, stacklevel=1)
     out = [t]
     summary = []
-    off = mean_offsets(prof, cmd_xy)
-    for i, (axis, cmd, meas) in enumerate((("x", xc, xm), ("y", yc, ym))):
+    # the twin acts on what the machine received: the commands through the input shaper
+    cmd_in = machine_command(prof, cmd_xy)
+    off = mean_offsets(prof, cmd_in)
+    for i, (axis, cmd, meas) in enumerate((("x", cmd_in[:, 0], xm), ("y", cmd_in[:, 1], ym))):
         tw = axis_twin(prof, axis)
         mean, std = tw.run(cmd, meas, learn=(meas is not None and not no_learn), warmup=w0,
                            offset_mm=off[:, i],

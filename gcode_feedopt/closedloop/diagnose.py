@@ -78,7 +78,7 @@ from scipy.signal import oaconvolve
 from ..errors import LogError
 from ..twin.extensions import lag_regressor, mean_offsets
 from ..twin.model import axis_twin, noise_floor_mm
-from ..twin.physics import RINGING_ZETA, AxisPhysics, axis_physics
+from ..twin.physics import RINGING_ZETA, AxisPhysics, axis_physics, log_machine_command
 from ..vm import effects as fx
 from ..vm.plant import respond
 from .catalogue import _candidates, _n_eff, _refine, _scan
@@ -586,16 +586,19 @@ def diagnose_log(log, profile, *, fit_fraction: float = FIT_FRACTION,
                        f"Ts={profile.ts_s:g} s; wrong machine, or resample the log")
     if warmup is None:
         warmup = getattr(log, "warmup", None)
-    d = diagnose_arrays(log.cmd_mm, log.pos_mm, log.ts_s, axis_physics(profile),
+    # the twin acts on what the machine received: the log's commands through the firmware's
+    # input shaper (twin.physics.log_machine_command)
+    cmd = log_machine_command(profile, log)
+    d = diagnose_arrays(cmd, log.pos_mm, log.ts_s, axis_physics(profile),
                         fit_fraction=fit_fraction, warmup=warmup)
     hold = slice(d.fit_samples, log.cmd_mm.shape[0])
-    before = twin_mean_mm(profile, log.cmd_mm)
+    before = twin_mean_mm(profile, cmd)
     d.holdout_rms_mm["after_fitted"] = d.holdout_rms_mm["after"]
     d.holdout_rms_mm["before"] = {ax: _rms(log.pos_mm[hold, i] - before[hold, i])
                                   for i, ax in enumerate(AXES)}
     if d.named:
         ext = extend_profile(profile, d.effects)
-        after = twin_mean_mm(ext, log.cmd_mm)
+        after = twin_mean_mm(ext, cmd)
         d.holdout_rms_mm["after"] = {ax: _rms(log.pos_mm[hold, i] - after[hold, i])
                                      for i, ax in enumerate(AXES)}
     else:
@@ -605,7 +608,7 @@ def diagnose_log(log, profile, *, fit_fraction: float = FIT_FRACTION,
 
 def twin_mean_mm(profile, cmd_mm: np.ndarray) -> np.ndarray:
     """(K, 2) the twin's open-loop mean prediction of X, Y (``predict --no-learn``), with the
-    profile's extensions."""
+    profile's extensions, for the machine's input ``cmd_mm`` (twin.physics.machine_command)."""
     cmd = np.asarray(cmd_mm, float)
     off = mean_offsets(profile, cmd)
     return np.column_stack([axis_twin(profile, ax).run(cmd[:, i], None, learn=False,

@@ -53,7 +53,7 @@ from ..twin.features import factor_series
 from ..twin.frf import ImpulseResponse
 from ..twin.model import (NOISE_FLOOR_MIN_MM, axis_twin, learned_deviation_noise, learned_draw,
                           learned_noise_mm, learned_speed_noise_s)
-from ..twin.physics import axis_impulse
+from ..twin.physics import axis_impulse, log_machine_command
 
 MAX_PRED_CHANGE_MM = 0.05
 FORGET = 0.05
@@ -227,11 +227,13 @@ def learn_logs(profile, logs):
         w0 = int(getattr(log, "warmup", 0))
         # what the profile's extensions (``diagnose -o``) already predict is taken off the
         # measurements, as ``predict`` does: the twin learns what is left
-        off = mean_offsets(profile, log.cmd_mm[:, :2])
+        # the twin acts on what the machine received (the firmware's input shaper)
+        cmd = log_machine_command(profile, log)
+        off = mean_offsets(profile, cmd[:, :2])
         for i, ax in enumerate(("x", "y")):
             if np.ptp(log.cmd_mm[w0:, i]) < 1.0:
                 continue
-            priors[ax], rec = learn_axis(profile, ax, log.cmd_mm[:, i], log.pos_mm[:, i] - off[:, i],
+            priors[ax], rec = learn_axis(profile, ax, cmd[:, i], log.pos_mm[:, i] - off[:, i],
                                          source=str(log.source), sha=sha, warmup=w0)
             records.append({"axis": ax, **rec})
         profile = dataclasses.replace(profile, twin=dataclasses.replace(profile.twin, priors=priors))

@@ -73,7 +73,7 @@ from ..identify.excitation import GENERATORS, duration_s, sampled_accel
 from ..identify.raw import analyse_raw, check_clipping, resample_uniform
 from ..identify.readers import read_raw
 from ..twin.features import n_features
-from ..twin.physics import nominal_impulse
+from ..twin.physics import log_machine_command, nominal_impulse
 from ..vm.log import read_log
 from ..vm.plant import respond
 
@@ -382,7 +382,8 @@ def load_log(path, profile, *, check: bool = True, raw_axis: str = "x") -> Motio
         pred = None
         if log.kind == "encoder" and np.isclose(log.ts_s, profile.ts_s, rtol=1e-3):
             imp = nominal_impulse(profile)
-            pred = np.column_stack([respond(log.cmd_mm[:, i], imp[ax][0]) for i, ax in enumerate("xy")])
+            cmd = log_machine_command(profile, log)
+            pred = np.column_stack([respond(cmd[:, i], imp[ax][0]) for i, ax in enumerate("xy")])
         for note in check_log(log, profile, predicted_mm=pred):
             warnings.warn(note, LogWarning, stacklevel=2)
     return log

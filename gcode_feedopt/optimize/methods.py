@@ -329,7 +329,8 @@ def plan_offline(path, profile, req: PlanRequest, *, tolerance_mm, plant=None,
         predictor = make_twin_predictor(profile, method, learn=False)
         check_noise_floor(predictor, profile, tolerance_mm, stringency)
         evaluator = TwinEvaluator(predictor, rules, ts_s=profile.ts_s,
-                                  offsets=motion_offsets(profile), **kw)
+                                  offsets=motion_offsets(profile),
+                                  shapers=profile.firmware.input_shaper, **kw)
     if seg_tol is not None:
         evaluator.set_feature_tolerance(path, seg_tol)
     # the plan must see the machine's ringing and settling out (SlowdownSettings.seeing_out)
@@ -396,6 +397,11 @@ def plan_mpc(path, profile, predictor, *, method, tolerance_mm, stringency, vmax
     Long for a reason: the serial and the parallel runs build their planners from the same
     locals (limits, z, settings, the free plan) and the online run's commit hook closes over
     the planner; the pieces' loop and the result's info are their own functions."""
+    if profile.firmware.input_shaper:
+        raise FeedOptError(f"profile {profile.name}: the window optimizer does not model the "
+                           "firmware's input shaper (firmware.input_shaper); the main command "
+                           "plans with the slow-down optimizer, which does (`compare` runs the "
+                           "paper's window optimizer)")
     vmax, axis_v, axis_a = effective_limits(profile, vmax_mm_s, amax_mm_s2)
     ts = profile.ts_s
     z = float(norm.ppf(stringency))

@@ -27,6 +27,7 @@ import warnings
 import numpy as np
 
 from ..errors import ModelWarning, ProfileError
+from ..firmware.shaper import shape_axes
 from ..vm.effects import dominant_mode_hz
 from . import frf as _frf
 from .modal import AxisModal, ModalModel, ensemble_impulse, fit_axis
@@ -141,8 +142,28 @@ def _last_above(profile, axes, envelope) -> float:
 def memory_time_s(profile) -> float:
     """How long a change of motion goes on moving the machine, s: the longer of
     ring_time_s (the impulse response dies down) and settle_time_s (the step response
-    settles). What the slow-down must see out (SlowdownSettings.seeing_out)."""
-    return max(ring_time_s(profile), settle_time_s(profile))
+    settles), plus the span of the firmware's input shaper (its last pulse moves the
+    machine that much later). What the slow-down must see out (SlowdownSettings.seeing_out)."""
+    span = max((float(np.ptp(sh.pulses()[1])) for sh in profile.firmware.input_shaper.values()),
+               default=0.0)
+    return max(ring_time_s(profile), settle_time_s(profile)) + span
+
+
+def machine_command(profile, cmd: np.ndarray, *, segments=None) -> np.ndarray:
+    """The motion the machine receives for commanded positions ``cmd`` (K, ≥2), mm: X and Y
+    through the firmware's input shaper where the profile has one (firmware.shaper), else
+    ``cmd`` itself. The twin's physics acts on this; the contour error is measured against
+    ``cmd``."""
+    return shape_axes(cmd, profile.ts_s, profile.firmware.input_shaper, segments=segments)
+
+
+def log_machine_command(profile, log) -> np.ndarray:
+    """:func:`machine_command` of a MotionLog's commands: a print's log ran through the
+    shaper; a Klipper resonance test's (``kind`` klipper_raw) did not (TEST_RESONANCES turns
+    the shaper off unless asked otherwise), so its commands are the machine's input."""
+    if log.kind == "klipper_raw":
+        return log.cmd_mm
+    return machine_command(profile, log.cmd_mm)
 
 
 def apply_effects(fits: AxisModal, effects, ts_s: float | None = None) -> AxisModal:

@@ -42,6 +42,7 @@ from scipy.signal import oaconvolve
 
 from . import effects as fx
 from .trajectory import Trajectory
+from ..firmware.shaper import shape_axes
 
 AXES = ("x", "y", "z")
 PLANT_AXES = ("x", "y")
@@ -177,21 +178,27 @@ class Plant:
             impulse[ax] = h
         # resonance_shift moves the peak of |H| of *this draw* (not the profile's nominal mode
         # list): the frequency a diagnosis can measure in the log lands on frequency_hz
-        self._init(profile.ts_s, impulse, effects, noise_seq, unit_dc_gain, {}, seed)
+        self._init(profile.ts_s, impulse, effects, noise_seq, unit_dc_gain, {}, seed,
+                   profile.firmware.input_shaper)
 
     @classmethod
     def from_impulse(cls, ts_s: float, impulse: Mapping[str, np.ndarray],
                      effects: Iterable[fx.Effect] = (), seed: int = 0, *,
-                     unit_dc_gain: bool = False, mode_hz: Mapping[str, float] | None = None) -> "Plant":
+                     unit_dc_gain: bool = False, mode_hz: Mapping[str, float] | None = None,
+                     shapers: Mapping | None = None) -> "Plant":
         """A plant from given impulse responses ("x", "y" -> shape (n,)), used as they are
-        unless ``unit_dc_gain``."""
+        unless ``unit_dc_gain``; ``shapers`` {"x"|"y": firmware.shaper.Shaper} shape the
+        commanded motion before it (the firmware's input shaper)."""
         self = cls.__new__(cls)
         noise_seq = np.random.SeedSequence(seed).spawn(2)[1]
-        self._init(ts_s, impulse, effects, noise_seq, unit_dc_gain, dict(mode_hz or {}), seed)
+        self._init(ts_s, impulse, effects, noise_seq, unit_dc_gain, dict(mode_hz or {}), seed,
+                   shapers)
         return self
 
-    def _init(self, ts_s, impulse, effects, noise_seq, unit_dc_gain, mode_hz, seed):
+    def _init(self, ts_s, impulse, effects, noise_seq, unit_dc_gain, mode_hz, seed, shapers=None):
         self.ts_s = float(ts_s)
+        #: the firmware's input shapers: the machine receives the shaped command
+        self.shapers = dict(shapers or {})
         self.seed = seed
         self.effects = tuple(effects)
         self.mode_hz = mode_hz
@@ -212,7 +219,8 @@ class Plant:
             raise ValueError(f"trajectory Ts={trajectory.ts_s} s differs from the plant's "
                              f"Ts={self.ts_s} s; resample the trajectory or the profile")
         rng = np.random.default_rng(self._noise_seq)
-        return simulate_axes(trajectory.pos_mm, self.ts_s, self.impulse, self.effects,
+        pos = shape_axes(trajectory.pos_mm, self.ts_s, self.shapers)
+        return simulate_axes(pos, self.ts_s, self.impulse, self.effects,
                              noise_rng=rng, mode_hz=self.mode_hz)
 
     def run(self, trajectory: Trajectory) -> np.ndarray:

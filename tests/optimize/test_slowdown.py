@@ -299,3 +299,40 @@ def test_an_extrusion_ending_in_a_z_lift_is_an_overshoot_vertex(ender):
     straight = np.flatnonzero((path.de_mm[:-1] > 0) & (path.de_mm[1:] > 0))
     assert not np.any(np.isin(np.round(rules.vertex_s, 9),
                               np.round(path.s0_mm[straight[:50] + 1], 9)))
+
+
+def _shaped(profile, kind="mzv", centred=True):
+    """``profile`` printing through an input shaper at its axes' first modes (Klipper's
+    centred pulses look ahead of the plan)."""
+    import dataclasses
+
+    from gcode_feedopt.firmware.shaper import Shaper
+    sh = {ax: Shaper(kind, float(profile.axes[ax].modes[0].freq_hz), 0.1, centred) for ax in "xy"}
+    return dataclasses.replace(profile, firmware=dataclasses.replace(profile.firmware,
+                                                                     input_shaper=sh))
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_a_plan_through_a_centred_shaper_is_the_whole_file_twins(ender, benchy, workers):
+    """With the firmware's centred shaper the twin at a sample sees the plan up to ~10 ms
+    ahead: a slowed cell changes the prediction of samples before it, a round's window is
+    predicted with the plan after it, and a worker's group with the group after it. The bound
+    the slow-down returns is still the whole-file twin's recomputed from scratch (stale values
+    before a changed cell would differ), in one process and in merged groups."""
+    path, fw = benchy
+    prof = _shaped(ender)
+    tp = make_twin_predictor(prof, "pidd", learn=False)
+    # the shaper takes F's worst bound from > 0.12 to 0.072 mm: judged at 0.04 mm
+    ev = TwinEvaluator(tp, ContourRules(path), z=norm.ppf(0.95), tol_mm=0.04,
+                       overshoot_reach_mm=1.4, ts_s=prof.ts_s, shapers=prof.firmware.input_shaper)
+    assert ev.lead >= 4
+    st = SlowdownSettings(workers=workers, min_parallel_samples=0,
+                          group_samples=None if workers == 1 else 2000)
+    res = plan_slowdown(path, _limits(path, prof, fw), ev, ts_s=prof.ts_s, settings=st)
+    if workers == 2:
+        assert res.info["groups"] >= 2
+    np.testing.assert_allclose(res.bound_mm, plan_bound(ev, path, res.s_mm), atol=1e-9, rtol=0)
+    _keeps_the_stringency(res, tol=0.04)
+    F = plan_kinematic(path, prof, fw_limits=fw)
+    assert plan_bound(ev, path, F.s_mm).max() > 0.06  # F breaks it: the plan slowed something
+    assert res.info["slowed_length_fraction"] > 0.01

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ...firmware.shaper import reach as shaper_reach, shape_axes
 from ...vm.metrics import CONTOUR_WINDOW_S, distance_to_polyline_window
 from ...vm.plant import simulate_axes
 from ..mpc import _normals
@@ -20,7 +21,7 @@ class TwinEvaluator:
     """The chance bound of sampled plans with the offline twin (TwinPredictor's prior)."""
 
     def __init__(self, tp, rules, *, z: float, tol_mm: float, overshoot_reach_mm: float,
-                 ts_s: float = 0.002, offsets=None):
+                 ts_s: float = 0.002, offsets=None, shapers=None):
         self.tp = tp
         self.rules = rules
         self.ts_s = float(ts_s)
@@ -28,19 +29,42 @@ class TwinEvaluator:
         self.tol = float(tol_mm)
         self.reach = float(overshoot_reach_mm)
         self.seg_tol = None
+        #: the firmware's input shapers {"x"|"y": Shaper}: the twin's input is the shaped
+        #: plan, whose sample k looks ``lead`` samples ahead and ``lag`` behind
+        self.shapers = dict(shapers or {})
+        self.lead, lag = shaper_reach(self.shapers, self.ts_s)
         #: samples of history that make a window's prediction exact (the twin's memory)
-        self.memory = max(h.size for h in tp.h) + tp.maxlag + 1
+        self.memory = max(h.size for h in tp.h) + tp.maxlag + 1 + lag
         #: (function cmd (K, 2) -> (K, 2) mm, its memory) of the profile's extensions that
         #: add to the mean (twin.extensions.motion_offsets), or None
         self.offsets = None
         if offsets is not None:
             self.offsets = offsets[0]
-            self.memory = max(self.memory, int(offsets[1]) + 1)
+            self.memory = max(self.memory, int(offsets[1]) + 1 + lag)
 
-    def predict(self, cmd_xy: np.ndarray, ref_xy: np.ndarray):
-        mean, std = predict_trajectory(self.tp, cmd_xy, ref=ref_xy)
+    def machine_input(self, cmd_xy: np.ndarray, ref_xy, segments=None):
+        """(the motion the machine receives, the references of its windows): the plan
+        shaped window by window (``segments``: the windows' first rows in ``cmd_xy``). A
+        window predicted from its own first command (``ref_xy`` per sample) starts from its
+        first shaped sample, the rest it is taken to start from; one reference for all (the
+        plan's first point, at rest) stays."""
+        if not self.shapers:
+            return cmd_xy, ref_xy
+        cmd_in = shape_axes(cmd_xy, self.ts_s, self.shapers, segments=segments)
+        ref = np.asarray(ref_xy, float)
+        if ref.ndim == 2:
+            first = np.zeros(cmd_xy.shape[0], np.int64)
+            if segments is not None:
+                first[np.asarray(segments, np.int64)] = np.asarray(segments, np.int64)
+                first = np.maximum.accumulate(first)
+            ref = ref + (cmd_in - cmd_xy)[first]
+        return cmd_in, ref
+
+    def predict(self, cmd_xy: np.ndarray, ref_xy: np.ndarray, segments=None):
+        cmd_in, ref = self.machine_input(cmd_xy, ref_xy, segments)
+        mean, std = predict_trajectory(self.tp, cmd_in, ref=ref)
         if self.offsets is not None:
-            mean = mean + self.offsets(cmd_xy).T
+            mean = mean + self.offsets(cmd_in).T
         return mean, std
 
     def set_feature_tolerance(self, path, seg_tol_mm: np.ndarray) -> None:
@@ -133,6 +157,8 @@ class PlantEvaluator(TwinEvaluator):
 
     def __init__(self, plant, rules, *, z: float, tol_mm: float, overshoot_reach_mm: float):
         self.plant = plant
+        self.shapers = dict(getattr(plant, "shapers", {}) or {})
+        self.lead = 0  # evaluated over the whole plan at once
         self.rules = rules
         self.ts_s = float(plant.ts_s)
         self.z = float(z)
@@ -142,8 +168,9 @@ class PlantEvaluator(TwinEvaluator):
         self.memory = None
         self.effects = tuple(e for e in plant.effects if e.stage != "sensor")
 
-    def predict(self, cmd_xy, ref_xy):
+    def predict(self, cmd_xy, ref_xy, segments=None):
         cmd3 = np.column_stack([cmd_xy, np.zeros(cmd_xy.shape[0])])
+        cmd3 = shape_axes(cmd3, self.plant.ts_s, self.shapers, segments=segments)
         out = simulate_axes(cmd3, self.plant.ts_s, self.plant.impulse, self.effects,
                             mode_hz=self.plant.mode_hz).actual_mm
         return out[:, :2].T, np.zeros((2, cmd_xy.shape[0]))

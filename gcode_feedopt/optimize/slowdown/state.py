@@ -52,6 +52,9 @@ class PlanState:
         self.evaluations = 0
         #: history (and reach after a change) of round predictions, samples
         self.reach = None if ev.memory is None else min(ev.memory, round_history)
+        #: samples a prediction looks ahead (the firmware's centred input shaper): a change
+        #: reaches back this far, and a window is predicted this far past its last sample
+        self.lead = int(getattr(ev, "lead", 0))
         if plan:
             self._replan(np.arange(self.p0, self.p1))
 
@@ -76,6 +79,11 @@ class PlanState:
             getattr(self, k)[q0 + 1:q0 + 1 + n] = part[k]
         for f in _FIELDS:
             self.arr[f][q0 + 1:q0 + 1 + n] = part[f]
+        e = q0 + n
+        if self.lead and n and e + 1 < len(self.s):
+            # the part's last samples were predicted without the motion after them
+            self._invalidate(e, max(0, self.s[e].size - self.lead))
+            self.approx[e][max(0, self.s[e].size - self.lead):] = False
 
     # -- bookkeeping ----------------------------------------------------------------------
     def _invalidate(self, e: int, lo: int, hi: int | None = None):
@@ -129,8 +137,9 @@ class PlanState:
             q = int(p) - self.p0
             old = self.s[e]
             n = full.size
+            back = 0
             if old is not None and mem is not None:
-                src, shifted, spill = self._warp(q, old.size, n, a, b, v, mem)
+                src, shifted, spill, back = self._warp(q, old.size, n, a, b, v, mem)
             else:
                 src, shifted, spill = np.full(n, -1), np.zeros(n, bool), 0
             take = src >= 0
@@ -149,6 +158,11 @@ class PlanState:
                 newm[:, take] = self.mean[e][:, src[take]]
                 ap[take] = self.approx[e][src[take]] | shifted[take]
             self.mean[e], self.approx[e] = newm, ap
+            if back and e > 0 and self.s[e - 1] is not None:
+                # the piece before sees this one's changed start through the shaper's lead
+                m_p = self.s[e - 1].size
+                self._invalidate(e - 1, max(0, m_p - back))
+                self.approx[e - 1][max(0, m_p - back):] = False
             if old is None or mem is None:
                 continue
             # the next pieces' first samples remember this one's end: predicted again where
@@ -174,23 +188,33 @@ class PlanState:
         A cell whose motion did not change (same duration, entry and exit speed) moves as
         before, only later by the delay of the changed cells before it: its new sample at
         local time t is the old sample at the corresponding old time (the nearest whole
-        sample; ``shifted`` when the delay is not zero). Samples in changed cells and within
-        ``reach`` samples after them have no old value (src −1): they are predicted again.
+        sample; ``shifted`` when the delay is not zero). Samples in changed cells, within
+        ``reach`` samples after them and ``self.lead`` before them have no old value (src
+        −1): they are predicted again.
 
-        Returns src (n,) old index or −1, shifted (n,) bool, and how many samples the last
-        changed stretch reaches past the piece's end (into the next pieces)."""
+        Returns src (n,) old index or −1, shifted (n,) bool, how many samples the last
+        changed stretch reaches past the piece's end (into the next pieces), and how many
+        samples before the piece's start the first one reaches back (the lead)."""
         ts = self.grid.ts_s
         a0, b0 = self.tc0[q], self.tc1[q]
         C = a.size
         vn, vo = np.append(v, 0.0), np.append(self.v0[q], 0.0)
         changed = ((b - a) != (b0 - a0)) | (vn[:-1] != vo[:-1]) | (vn[1:] != vo[1:])
         if not changed.any() and old_n == n:
-            return np.arange(n), np.zeros(n, bool), 0
+            return np.arange(n), np.zeros(n, bool), 0, 0
         t = np.arange(1, n + 1) * ts
         c = np.clip(np.searchsorted(a, t, side="right") - 1, 0, C - 1)
         last = np.maximum.accumulate(np.where(changed, np.arange(C), -1))[c]
         end_last = np.where(last >= 0, b[np.maximum(last, 0)], -np.inf)
         dirty = (t - end_last) < reach * ts
+        back = 0
+        if self.lead and changed.any():
+            # a changed cell is seen ``lead`` samples before it starts
+            nxt = np.minimum.accumulate(np.where(changed, np.arange(C), C)[::-1])[::-1][c]
+            ahead = np.where(nxt < C, a[np.minimum(nxt, C - 1)], np.inf) - t
+            dirty |= (ahead >= 0) & (ahead < self.lead * ts)
+            first = float(a[np.flatnonzero(changed)[0]])
+            back = max(0, self.lead - int(np.floor(first / ts + 1e-9)))
         rest = t > b[-1]
         t_old = np.where(rest, t - (b[-1] - b0[-1]), a0[c] + (t - a[c]))
         j = np.rint(t_old / ts).astype(np.int64) - 1
@@ -201,7 +225,7 @@ class PlanState:
         if changed.any():
             end = float(b[np.flatnonzero(changed)[-1]]) + reach * ts
             spill = max(0, int(np.ceil(end / ts - 1e-9)) - n)
-        return src, shifted, spill
+        return src, shifted, spill, back
 
     def set_scale(self, scale: np.ndarray):
         changed = np.flatnonzero(scale != self.scale)
@@ -274,6 +298,8 @@ class PlanState:
         else:
             edge = np.diff(np.concatenate([[0], bad.astype(np.int8), [0]]))
             a_runs, b_runs = np.flatnonzero(edge == 1), np.flatnonzero(edge == -1)
+            # a run is predicted with the plan that follows it as far as the prediction looks
+            b_runs = np.minimum(b_runs + self.lead, s.size)
             # each run with its history before it; overlapping ones merge
             h_lo = np.maximum(a_runs - mem, 0)
             first = np.concatenate([[True], h_lo[1:] > b_runs[:-1]])
@@ -281,11 +307,9 @@ class PlanState:
             w_hi = np.maximum.reduceat(b_runs, np.flatnonzero(first))
         owner, idx = ranges(w_lo, w_hi)
         geo = self._gather(idx, starts)
-        if exact:
-            ref = self.ref
-        else:
-            ref = geo["cmd"][np.concatenate([[0], np.cumsum(w_hi - w_lo)[:-1]])][owner]
-        mu, sd = self.ev.predict(geo["cmd"], ref)
+        w_first = np.concatenate([[0], np.cumsum(w_hi - w_lo)[:-1]])  # each window's first row
+        ref = self.ref if exact else geo["cmd"][w_first][owner]
+        mu, sd = self.ev.predict(geo["cmd"], ref, segments=w_first)
         vals = self.ev.bound(geo, mu, sd, idx=idx,
                              path_xy=lambda: np.concatenate([g["cmd"] for g in self.geo]))
         vals = vals + (self.ev.rest_error(geo, idx),)
