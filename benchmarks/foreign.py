@@ -8,6 +8,11 @@ prior prediction vs "actual = command", coverage of the 95 % interval without / 
 
     python benchmarks/foreign.py                 # seeds 0–7, ~1 min each on 2 cores
     python benchmarks/foreign.py --seeds 3 5 --kind servo_screw --keep /tmp/foreign
+    python benchmarks/foreign.py --seeds 60 61 --shaper mzv [--causal] [--unstated]
+
+``--shaper``: the machines print through an input shaper at their dominant modes (Klipper's
+centred pulses; ``--causal``: Marlin's), measured without it (the FRFs); the profile states it
+in ``firmware.input_shaper`` as its owner would, unless ``--unstated``.
 """
 
 from __future__ import annotations
@@ -22,7 +27,16 @@ REPO = pathlib.Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(REPO), str(REPO / "benchmarks")]
 
 from independent import bench_a_profile, evaluate, print_rows  # noqa: E402
-from tests.foreign.machines import KINDS, make_machine, write_dataset  # noqa: E402
+from tests.foreign.machines import KINDS, make_machine, with_shaper, write_dataset  # noqa: E402
+
+
+def stated(prof, mach):
+    """``prof`` with the foreign machine's input shapers stated in firmware.input_shaper."""
+    import dataclasses
+
+    from gcode_feedopt.firmware.shaper import Shaper
+    sh = {a: Shaper.from_dict(c) for a, c in mach.shapers.items()}
+    return dataclasses.replace(prof, firmware=dataclasses.replace(prof.firmware, input_shaper=sh))
 
 
 def main():
@@ -32,18 +46,27 @@ def main():
     ap.add_argument("--keep", type=pathlib.Path, default=None,
                     help="write the data sets here (default: a temporary folder)")
     ap.add_argument("--no-effects", action="store_true", help="clean logs only")
+    ap.add_argument("--shaper", choices=("zv", "zvd", "mzv"), default=None,
+                    help="print through this input shaper at the dominant modes")
+    ap.add_argument("--causal", action="store_true", help="the shaper's pulses causal (Marlin)")
+    ap.add_argument("--unstated", action="store_true",
+                    help="the profile does not state the shaper")
     args = ap.parse_args()
     warnings.simplefilter("ignore")
     base = args.keep or pathlib.Path(tempfile.mkdtemp(prefix="foreign-"))
     summary = []
     for seed in args.seeds:
         mach = make_machine(seed, args.kind)
+        if args.shaper:
+            mach = with_shaper(mach, args.shaper, centred=not args.causal)
         out = base / f"foreign-{seed}"
         labels = write_dataset(mach, out, effects=not args.no_effects)
         print(f"\n## {mach.describe()}\n")
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             prof = bench_a_profile(out, out.name)
+        if mach.shapers and not args.unstated:
+            prof = stated(prof, mach)
         for w in caught:
             print(f"  warning: {w.message}")
         rows = evaluate(out, prof)

@@ -15,6 +15,8 @@ the twin was not built from.
 
 ``--prints N``: also print after print, each planned with the profile learned so far and its
 log ``learn``ed into it (N prints, N − 1 learned).
+``--shaper mzv`` (``--causal``): the machines print through an input shaper at their dominant
+modes (measured without it); the profile states it, unless ``--unstated``.
 """
 
 from __future__ import annotations
@@ -32,7 +34,8 @@ sys.path[:0] = [str(REPO), str(REPO / "benchmarks")]
 from end_to_end import run, scenario_path, with_limits  # noqa: E402
 from gcode_feedopt.errors import FeedOptError  # noqa: E402
 from independent import bench_a_profile  # noqa: E402
-from tests.foreign.machines import ForeignPlant, make_machine, write_dataset  # noqa: E402
+from foreign import stated  # noqa: E402
+from tests.foreign.machines import ForeignPlant, make_machine, with_shaper, write_dataset  # noqa: E402
 
 
 def learned(path, prof, plant, tol, eta, tmp):
@@ -63,6 +66,11 @@ def main():
     ap.add_argument("--amax", type=float, default=5000.0)
     ap.add_argument("--prints", type=int, default=1,
                     help="also N prints in sequence, each learned into the profile")
+    ap.add_argument("--shaper", choices=("zv", "zvd", "mzv"), default=None,
+                    help="print through this input shaper at the dominant modes")
+    ap.add_argument("--causal", action="store_true", help="the shaper's pulses causal (Marlin)")
+    ap.add_argument("--unstated", action="store_true",
+                    help="the profile does not state the shaper")
     args = ap.parse_args()
     warnings.simplefilter("ignore")
     tmp = pathlib.Path(tempfile.mkdtemp(prefix="foreign-e2e-"))
@@ -74,10 +82,14 @@ def main():
     print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
     for seed in args.seeds:
         mach = make_machine(seed)
+        if args.shaper:
+            mach = with_shaper(mach, args.shaper, centred=not args.causal)
         out = tmp / f"foreign-{seed}"
         labels = write_dataset(mach, out, effects=False)
         labels = json.loads((out / "labels.json").read_text())
         prof = with_limits(bench_a_profile(out, out.name), args.vmax, args.amax)
+        if mach.shapers and not args.unstated:
+            prof = stated(prof, mach)
         path = scenario_path("butterfly", prof, tmp)
         plant = ForeignPlant(mach, labels)
         for eta in args.eta:

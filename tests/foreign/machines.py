@@ -29,6 +29,11 @@ linear channel is discretised with a first-order hold at Ts/R (R = 20) and stepp
 a whole number of fine steps. The sensor quantises and adds white noise. Nothing here imports
 ``gcode_feedopt``: the generator and the twin share no code.
 
+A machine may print through its firmware's input shaper (``with_shaper``: ZV, ZVD or MZV at
+each axis's dominant mode, Klipper's centred pulses or causal ones): the logs' commands are the
+planner's, the motors receive Σ aᵢ u(t − tᵢ) on the fine grid (``shaper_pulses``, written here
+apart from the package's); the FRFs stay the machine's own (a resonance test runs unshaped).
+
 Effects (labels follow the project's catalogue, as benchA's): ``delay`` (motor command late),
 ``gain`` (command scaled about 0 mm), ``periodic_time`` (sinusoidal force on the frame / table,
 labelled with the resulting carriage amplitude), ``resonance_shift`` (carriage / table mass ×
@@ -190,6 +195,9 @@ class Machine:
     n_meas: int
     scatter: float         # relative RMS scatter of stiffnesses between measurements
     extras: dict = field(default_factory=dict)
+    #: the firmware's input shaper per axis, as a printer's configuration states it:
+    #: {"x"|"y": {"type": "zv"|"zvd"|"mzv", "freq_hz", "damping_ratio", "centred"}}
+    shapers: dict = field(default_factory=dict)
 
     def describe(self) -> str:
         ch = self.chans
@@ -198,7 +206,10 @@ class Machine:
                 + f"; delay {1e3 * self.delay_s:.1f} ms; FRFs {self.n_meas} on "
                 f"{self.frf_grid[0]:g}–{self.frf_grid[1]:g} Hz step {self.frf_grid[2]:g}, "
                 f"{100 * self.frf_noise:.1f} % noise; sensor q {1e3 * self.sensor_q_mm:.2f} µm, "
-                f"σ {1e3 * self.sensor_noise_mm:.2f} µm")
+                f"σ {1e3 * self.sensor_noise_mm:.2f} µm"
+                + "".join(f"; {a} shaped {c['type']} {c['freq_hz']:g} Hz"
+                          f"{' centred' if c['centred'] else ''}"
+                          for a, c in sorted(self.shapers.items())))
 
 
 def _belt(rng, hot: bool):
@@ -253,6 +264,36 @@ def make_machine(seed: int, kind: str | None = None) -> Machine:
                    sensor_noise_mm=rng.uniform(0.2, 2.0) * 1e-3,
                    frf_grid=(start, stop, step), frf_noise=rng.uniform(0.01, 0.03),
                    n_meas=int(rng.integers(3, 9)), scatter=rng.uniform(0.005, 0.03))
+
+
+def with_shaper(mach: Machine, kind: str = "mzv", centred: bool = True,
+                damping: float = 0.1) -> Machine:
+    """The machine printing through an input shaper on both axes, each tuned to the axis's
+    dominant mode (as a user sets it from a resonance test). Its FRFs stay the machine's
+    (Klipper's TEST_RESONANCES turns the shaper off); its logs are prints, shaped."""
+    import dataclasses
+    sh = {ax: {"type": kind, "freq_hz": round(float(_axis_dominant(mach.chans, ax)), 1),
+               "damping_ratio": damping, "centred": centred} for ax in "xy"}
+    return dataclasses.replace(mach, shapers=sh)
+
+
+def shaper_pulses(cfg: dict) -> tuple:
+    """(amplitudes, times s) of a configured shaper: the zero-vibration trains (Singer &
+    Seering; the modified ZV with pulses at 0, 3/8 and 3/4 of the damped period), written
+    here apart from the package's, centred on their mean time when the firmware does so."""
+    z, f = cfg["damping_ratio"], cfg["freq_hz"]
+    wd_period = 1.0 / (f * math.sqrt(1 - z * z))
+    if cfg["type"] == "mzv":
+        K = math.exp(-0.75 * z * math.pi / math.sqrt(1 - z * z))
+        c = 1 - math.sqrt(0.5)
+        a = np.array([c, (math.sqrt(2) - 1) * K, c * K * K])
+        t = wd_period * np.array([0.0, 0.375, 0.75])
+    else:
+        K = math.exp(-z * math.pi / math.sqrt(1 - z * z))
+        a = np.array([1.0, K]) if cfg["type"] == "zv" else np.array([1.0, 2 * K, K * K])
+        t = wd_period * np.arange(a.size) * 0.5
+    a = a / a.sum()
+    return a, (t - a @ t if cfg["centred"] else t)
 
 
 def _stiff_keys(ch: Channel):
@@ -313,6 +354,11 @@ def respond_xy(mach: Machine, chans: dict, x_cmd, y_cmd, ts_s: float, *, delay_s
     for ax, g in (axis_gain or {}).items():
         cmd[ax] = g * cmd[ax]
     steps = {ax: int(round((d_all + (axis_delay or {}).get(ax, 0.0)) / (ts_s / R))) for ax in "xy"}
+    # the firmware's input shaper acts on each axis's planned motion (before a corexy's mixing)
+    sh = {}
+    for ax, cfg in mach.shapers.items():
+        a, t = shaper_pulses(cfg)
+        sh[ax] = (a, t / (ts_s / R))
     K = len(cmd["x"])
     tf = np.arange((K - 1) * R + 1) * ts_s / R
 
@@ -324,17 +370,17 @@ def respond_xy(mach: Machine, chans: dict, x_cmd, y_cmd, ts_s: float, *, delay_s
 
     if play or ecc or friction or frame_force:
         x, y = _respond_drive(chans, cmd, steps, ts_s, tf, play or {}, ecc or {},
-                              friction or {}, frame_force or {})
+                              friction or {}, frame_force or {}, sh)
     elif "a" in chans:
         # a corexy's motors: the two axes' delays apply to the axis commands before mixing
-        ua = _fine(cmd["x"], steps["x"]) + _fine(cmd["y"], steps["y"])
-        ub = _fine(cmd["x"], steps["x"]) - _fine(cmd["y"], steps["y"])
+        fx, fy = _fine(cmd["x"], steps["x"], sh.get("x")), _fine(cmd["y"], steps["y"], sh.get("y"))
+        ua, ub = fx + fy, fx - fy
         ya = _sim_fine(chans["a"], ua, ts_s, wf("x"))
         yb = _sim_fine(chans["b"], ub, ts_s, wf("y"))
         x, y = 0.5 * (ya + yb), 0.5 * (ya - yb)
     else:
-        x = _sim_fine(chans["x"], _fine(cmd["x"], steps["x"]), ts_s, wf("x"))
-        y = _sim_fine(chans["y"], _fine(cmd["y"], steps["y"]), ts_s, wf("y"))
+        x = _sim_fine(chans["x"], _fine(cmd["x"], steps["x"], sh.get("x")), ts_s, wf("x"))
+        y = _sim_fine(chans["y"], _fine(cmd["y"], steps["y"], sh.get("y")), ts_s, wf("y"))
     rng = rng or np.random.default_rng(0)
     out = []
     for v in (x, y):
@@ -363,12 +409,13 @@ def _play_op(u, width):
     return out
 
 
-def _respond_drive(chans, cmd, steps, ts_s, tf, play, ecc, friction, frame_force):
+def _respond_drive(chans, cmd, steps, ts_s, tf, play, ecc, friction, frame_force, sh=None):
     """respond_xy with the drive effects (its docstring); noise-free (x, y) at the samples."""
     dt = ts_s / R
+    sh = sh or {}
     u = {}
     for ax in "xy":
-        v = _fine(cmd[ax], steps[ax])
+        v = _fine(cmd[ax], steps[ax], sh.get(ax))
         if ax in play:
             v = _play_op(v, play[ax])
         if ax in ecc:
@@ -378,7 +425,7 @@ def _respond_drive(chans, cmd, steps, ts_s, tf, play, ecc, friction, frame_force
 
     def coulomb(ax):
         # the commanded velocity of the axis (as its drive receives it, before the play)
-        uf = _fine(cmd[ax], steps[ax])
+        uf = _fine(cmd[ax], steps[ax], sh.get(ax))
         vel = np.gradient(uf, dt)
         return -friction[ax] * np.tanh(vel / V_FRICTION)
 
@@ -413,9 +460,16 @@ def _respond_drive(chans, cmd, steps, ts_s, tf, play, ecc, friction, frame_force
     return out["x"], out["y"]
 
 
-def _fine(u, delay_steps):
+def _fine(u, delay_steps, shaper=None):
+    """The command linear between samples at Ts/R, through the firmware's shaper (``shaper``
+    (a, shifts in fine steps): Σ aᵢ u(t − tᵢ) on the fine grid, holding the ends), then the
+    transport delay."""
     K = len(u)
     uf = np.interp(np.arange((K - 1) * R + 1) / R, np.arange(K), u)
+    if shaper is not None:
+        a, shift = shaper
+        j = np.arange(uf.size, dtype=float)
+        uf = sum(ai * np.interp(j - si, j, uf) for ai, si in zip(a, shift))
     if delay_steps:
         uf = np.concatenate([np.full(delay_steps, uf[0]), uf[:-delay_steps]])
     return uf
