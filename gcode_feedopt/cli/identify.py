@@ -22,6 +22,7 @@ from ..outputs import check_outputs, output_path
 from ..pipeline import PLOT_SUFFIXES
 from ..profile import load_profile, save_profile
 from ..profile.io import check_profile_output
+from ..profile.klipper_cfg import read_input_shaper
 from .options import Bounded, profile_files
 
 
@@ -57,18 +58,23 @@ from .options import Bounded, profile_files
 @click.option("--flavour", type=click.Choice(["marlin", "klipper"]), default=None,
               help="the machine's firmware, if not the base profile's (its planner model: "
                    "junctions, accelerations, the commands that set limits; docs/firmware.md)")
+@click.option("--klipper-config", "klipper_cfg", type=click.Path(exists=True, dir_okay=False),
+              default=None, help="the printer.cfg whose [input_shaper] the printer prints with: "
+              "stated in the profile (firmware.input_shaper); measure with it off, as "
+              "TEST_RESONANCES does")
 @click.option("--name", default=None, help="the new profile's name  [the output file's stem]")
 @click.option("--description", default=None,
               help="its description  [identified from the files on BASE's limits]")
 def identify(x_files, y_files, base, n_modes, output, plot_path, excitation, freq_start,
              freq_end, hz_per_sec, accel_per_hz, sweeping_accel, sweeping_period, segments,
-             flavour, name, description):
+             flavour, klipper_cfg, name, description):
     """Build a profile from FRF files, Klipper spectra or Klipper raw recordings.
 
     \b
     gcode-feedopt identify --x resonances_x.csv --y resonances_y.csv -o mine.yaml
     gcode-feedopt identify --x raw_data_x.csv --y raw_data_y.csv -o mine.yaml --plot fit.png
     gcode-feedopt identify --x raw_x.csv --y raw_y.csv --base voron24 --flavour klipper -o v.yaml
+    gcode-feedopt identify --x raw_x.csv --y raw_y.csv --base voron24 --klipper-config printer.cfg -o v.yaml
     """
     if not x_files and not y_files:
         raise click.UsageError("give at least one --x or --y file")
@@ -85,7 +91,8 @@ def identify(x_files, y_files, base, n_modes, output, plot_path, excitation, fre
         raise click.UsageError("--freq-start/--freq-end/--hz-per-sec/--accel-per-hz/--sweeping-* "
                                "need --excitation legacy or current")
     base_p = load_profile(base)
-    inputs = [*x_files, *y_files, *profile_files(base)]
+    shapers = read_input_shaper(klipper_cfg) if klipper_cfg else None
+    inputs = [*x_files, *y_files, *profile_files(base), *([klipper_cfg] if klipper_cfg else [])]
     for f in inputs:
         check_input(f)
     check_profile_output(output, "-o", inputs)
@@ -110,6 +117,10 @@ def identify(x_files, y_files, base, n_modes, output, plot_path, excitation, fre
         # G91 moves E relatively on Marlin, not on Klipper (docs/firmware.md)
         firmware = dataclasses.replace(firmware, flavour=flavour,
                                        g91_relative_e=flavour == "marlin")
+    if shapers is not None:
+        firmware = dataclasses.replace(firmware, input_shaper=shapers)
+        for a, sh in shapers.items():
+            click.echo(f"{a}: prints through input shaper {sh.describe()} ({klipper_cfg})")
     new = dataclasses.replace(
         base_p, name=name or out.stem, axes=axes, provenance=prov, twin=twin, source_path=None,
         firmware=firmware,

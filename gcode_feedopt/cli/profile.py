@@ -11,6 +11,7 @@ import click
 from ..profile import load_profile, save_profile
 from ..profile.build import build_from_frfs
 from ..profile.io import check_profile_output
+from ..profile.klipper_cfg import read_input_shaper
 from .options import profile_files
 
 
@@ -23,15 +24,15 @@ def _parse_build_args(args):
     """``--frf-x A.csv B.csv ... --frf-y C.csv ... [--base P] [--name N] -o OUT`` (the file
     lists run until the next option, as the issue's command line writes them)."""
     opts = {"frf_x": [], "frf_y": [], "base": "ender3pro", "name": None, "description": None,
-            "output": None}
+            "output": None, "klipper_cfg": None}
     cur = None
     it = iter(args)
     for tok in it:
         if tok in ("--frf-x", "--frf-y"):
             cur = opts["frf_x"] if tok == "--frf-x" else opts["frf_y"]
-        elif tok in ("--base", "--name", "--description", "-o", "--output"):
+        elif tok in ("--base", "--name", "--description", "-o", "--output", "--klipper-config"):
             key = {"--base": "base", "--name": "name", "--description": "description",
-                   "-o": "output", "--output": "output"}[tok]
+                   "-o": "output", "--output": "output", "--klipper-config": "klipper_cfg"}[tok]
             try:
                 opts[key] = next(it)
             except StopIteration:
@@ -66,6 +67,8 @@ def build(args):
       --base PROFILE      limits, firmware and twin settings from this profile [ender3pro]
       --name NAME         the new profile's name [the output file's stem]
       --description TEXT  its description [built from measured FRFs on BASE limits]
+      --klipper-config F  the printer.cfg whose [input_shaper] the printer prints with
+                          (firmware.input_shaper; the FRFs measured with it off)
       -o, --output OUT    the YAML to write (required)
     """
     o = _parse_build_args(args)
@@ -74,7 +77,11 @@ def build(args):
     if not frf_x and not frf_y:
         raise click.UsageError("give --frf-x and/or --frf-y files")
     base_p = load_profile(base)
-    check_profile_output(output, "-o", [*frf_x, *frf_y, *profile_files(base)])
+    cfg = o.get("klipper_cfg")
+    check_profile_output(output, "-o", [*frf_x, *frf_y, *profile_files(base), *([cfg] if cfg else [])])
+    if cfg:
+        base_p = dataclasses.replace(base_p, firmware=dataclasses.replace(
+            base_p.firmware, input_shaper=read_input_shaper(cfg)))
     new, lines = build_from_frfs(base_p, {"x": frf_x, "y": frf_y},
                                  name=name or output.stem, description=o["description"])
     for line in lines:
