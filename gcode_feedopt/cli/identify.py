@@ -92,6 +92,12 @@ def identify(x_files, y_files, base, n_modes, output, plot_path, excitation, fre
                                "need --excitation legacy or current")
     base_p = load_profile(base)
     shapers = read_input_shaper(klipper_cfg) if klipper_cfg else None
+    fw_flavour = flavour or base_p.firmware.flavour
+    if klipper_cfg and fw_flavour != "klipper":
+        why = "--flavour" if flavour else f"--base {base}"
+        raise click.UsageError(f"--klipper-config {klipper_cfg}: a printer.cfg is Klipper's, but "
+                               f"the profile's firmware would be {fw_flavour} (from {why}); "
+                               "give --flavour klipper or a Klipper base")
     inputs = [*x_files, *y_files, *profile_files(base), *([klipper_cfg] if klipper_cfg else [])]
     for f in inputs:
         check_input(f)

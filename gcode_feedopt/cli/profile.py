@@ -79,6 +79,10 @@ def build(args):
     base_p = load_profile(base)
     cfg = o.get("klipper_cfg")
     check_profile_output(output, "-o", [*frf_x, *frf_y, *profile_files(base), *([cfg] if cfg else [])])
+    if cfg and base_p.firmware.flavour != "klipper":
+        raise click.UsageError(f"--klipper-config {cfg}: a printer.cfg is Klipper's, but --base "
+                               f"{base}'s firmware is {base_p.firmware.flavour}; take a Klipper "
+                               "base (voron24) or build on your own Klipper profile")
     if cfg:
         base_p = dataclasses.replace(base_p, firmware=dataclasses.replace(
             base_p.firmware, input_shaper=read_input_shaper(cfg)))

@@ -86,3 +86,21 @@ def test_the_printers_shaper_goes_into_the_profile_it_builds(tmp_path, command):
     assert d["y"]["type"] == "ei" and d["y"]["freq_hz"] == 39.6
     show = CliRunner().invoke(cli, ["profile", "show", str(out)])
     assert "printed through input shaper mzv 48.2 Hz" in show.output
+
+
+@pytest.mark.skipif(not BENCH_A.is_dir(), reason="needs ../shared/data/independent")
+@pytest.mark.parametrize("command", ["profile build", "identify"])
+def test_a_printer_cfg_on_a_marlin_base_is_refused_with_the_way_round(tmp_path, command):
+    cfg = _cfg(tmp_path, SAVED)
+    xs = [str(p) for p in sorted((BENCH_A / "frf").glob("x_*.csv"))[:3]]
+    out = tmp_path / "mine.yaml"
+    args = (["profile", "build", "--frf-x", *xs] if command == "profile build" else
+            ["identify", *sum((["--x", f] for f in xs), [])])
+    res = CliRunner().invoke(cli, args + ["--base", "ender3pro", "--klipper-config", str(cfg),
+                                          "-o", str(out)])
+    assert res.exit_code == 2 and "a printer.cfg is Klipper's" in res.output, res.output
+    assert not out.exists()
+    if command == "identify":  # --flavour klipper says so
+        res = CliRunner().invoke(cli, args + ["--base", "ender3pro", "--flavour", "klipper",
+                                              "--klipper-config", str(cfg), "-o", str(out)])
+        assert res.exit_code == 0, res.output
