@@ -8,7 +8,6 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import pathlib
-import re
 import time
 from dataclasses import dataclass
 
@@ -510,8 +509,9 @@ def _notes(run: _Run, rep: Report) -> None:
                 f"{run.in_path}:{tower + 1}: the file runs TUNING_TOWER, a calibration print, and "
                 "its accelerations were overridden; what it calibrates (e.g. pressure advance) "
                 "depends on them: run it with --accel file to calibrate at the sliced ones")
-    shaping = next((i for i, ln in enumerate(program.lines)
-                    if re.match(rb"\s*(SET_INPUT_SHAPER|M593)(\s|$)", ln, re.I)), None)
+    # the reader's events (non-move commands), not a scan of every line
+    shaping = next((e.line_no for e in program.events
+                    if e.name in ("SET_INPUT_SHAPER", "M593")), None)
     if shaping is not None:
         # the twin's input is the plan through the profile's shaper (twin.physics)
         have = "; ".join(f"{a} {sh.describe()}" for a, sh in profile.firmware.input_shaper.items())
