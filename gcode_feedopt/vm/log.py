@@ -1,7 +1,7 @@
 """Encoder logs: the CSV the virtual machine writes and the closed loop reads.
 
-Format: a header line ``t,x_cmd,y_cmd,x,y`` optionally followed by any of ``z_cmd,z,e_cmd``,
-then one row per sample period Ts; seconds and millimetres, plain decimals (6 places: 1 nm,
+Format: a header line naming ``t,x_cmd,y_cmd,x,y`` and optionally any of ``z_cmd,z,e_cmd``,
+in any order (``write_log`` writes them in that order), then one row per sample period Ts; seconds and millimetres, plain decimals (6 places: 1 nm,
 1 µs). ``x_cmd``.. are the commanded positions, ``x``.. the measured ones.
 
 Writing millions of rows with ``np.savetxt`` takes tens of seconds (one Python ``%`` per
@@ -156,18 +156,22 @@ def read_log(path) -> EncoderLog:
         raise LogError(f"{name}:1: the header is not ASCII text; an encoder log starts with "
                        f"{','.join(REQUIRED_COLUMNS)}") from None
     columns = tuple(c.strip() for c in header.split(","))
-    if columns[:5] != REQUIRED_COLUMNS:
+    missing = [c for c in REQUIRED_COLUMNS if c not in columns]
+    if missing:
         hint = ""
         if header.startswith("#time"):
             hint = " (this looks like a raw Klipper accelerometer file, not an encoder log)"
-        raise LogError(f"{name}:1: header {header[:60]!r} must start with "
-                       f"{','.join(REQUIRED_COLUMNS)}{hint}")
-    for c in columns[5:]:
-        if c not in OPTIONAL_COLUMNS:
-            close = difflib.get_close_matches(c, OPTIONAL_COLUMNS, n=1)
+        raise LogError(f"{name}:1: header {header[:60]!r} lacks column(s) "
+                       f"{','.join(missing)}; an encoder log's header names "
+                       f"{','.join(REQUIRED_COLUMNS)} (any order){hint}")
+    for c in columns:
+        if c not in REQUIRED_COLUMNS and c not in OPTIONAL_COLUMNS:
+            known = REQUIRED_COLUMNS + OPTIONAL_COLUMNS
+            close = difflib.get_close_matches(c, known, n=1)
             did = f" (did you mean {close[0]!r}?)" if close else ""
-            raise LogError(f"{name}:1: unknown column {c!r}{did}; optional columns are "
-                           f"{','.join(OPTIONAL_COLUMNS)}")
+            raise LogError(f"{name}:1: unknown column {c!r}{did}; a log's columns are "
+                           f"{','.join(REQUIRED_COLUMNS)} and optionally "
+                           f"{','.join(OPTIONAL_COLUMNS)}, in any order")
     if len(set(columns)) != len(columns):
         raise LogError(f"{name}:1: a column appears twice in {header!r}")
     C = len(columns)
@@ -185,7 +189,7 @@ def read_log(path) -> EncoderLog:
     if not np.all(np.isfinite(data)):
         r = int(np.flatnonzero(~np.all(np.isfinite(data), axis=1))[0])
         raise LogError(f"{name}:{r + 2}: a value is NaN or infinite")
-    t = data[:, 0]
+    t = data[:, columns.index("t")]
     dt = np.diff(t)
     ts = (t[-1] - t[0]) / (n_rows - 1)
     if ts <= 0 or np.any(np.abs(dt - ts) > TS_JITTER * ts + 10.0 ** -DECIMALS):

@@ -53,9 +53,26 @@ def test_round_trip_minimal_columns(tmp_path):
     np.testing.assert_allclose(log.pos_mm[:, :2], pos[:, :2], atol=5e-7)
 
 
+def test_columns_in_any_order(tmp_path):
+    """A logger that writes measured before commanded columns (or t last) is read by name."""
+    t, cmd, pos, _ = sample(50)
+    p = tmp_path / "log.csv"
+    write_log(p, t, cmd, pos, include_z=False)
+    ref = read_log(p)
+    rows = np.loadtxt(p, delimiter=",", skiprows=1)
+    q = tmp_path / "reordered.csv"
+    np.savetxt(q, rows[:, [3, 4, 1, 2, 0]], delimiter=",", fmt="%.6f",
+               header="x,y,x_cmd,y_cmd,t", comments="")
+    log = read_log(q)
+    np.testing.assert_array_equal(log.cmd_mm, ref.cmd_mm)
+    np.testing.assert_array_equal(log.pos_mm, ref.pos_mm)
+    np.testing.assert_array_equal(log.t_s, ref.t_s)
+
+
 @pytest.mark.parametrize("content, match", [
     ("#time,accel_x,accel_y,accel_z\n1,2,3,4\n", r":1: header .* raw Klipper accelerometer"),
     ("t,x_cmd,y_cmd,x,y,e_cmnd\n0,1,2,3,4,5\n", r"unknown column 'e_cmnd' \(did you mean 'e_cmd'\?\)"),
+    ("t,x_cmd,y_cmd,x,z\n0,1,2,3,4\n0.002,1,2,3,4\n", r":1: header .* lacks column\(s\) y;"),
     ("t,x_cmd,y_cmd,x,y\n0,1,2,3,4\n0.002,1,2,3\n", r":3: 4 values, the header has 5"),
     ("t,x_cmd,y_cmd,x,y\n0,1,2,3,4\n0.002,1,2,abc,4\n", r":3: .* is not a row of numbers"),
     ("t,x_cmd,y_cmd,x,y\n0,1,2,3,4\n", r"1 data rows; a log needs at least 2"),
