@@ -9,6 +9,7 @@ spread, as the optimizer's chance constraint assumes it.
 
     python benchmarks/independent.py            # ~1–2 min on 2 cores
     python benchmarks/independent.py --data DIR # another data set in benchA's layout
+    python benchmarks/independent.py --sensor-offset 0.05 -0.03   # encoders zeroed off
 
 ``--data`` takes any directory laid out as benchA is (``frf/x_*.csv``, ``frf/y_*.csv``,
 ``logs/*.csv`` with ``t,x_cmd,y_cmd,x,y``, ``labels.json``): a machine we have not seen is
@@ -28,11 +29,11 @@ import warnings
 import numpy as np
 
 from gcode_feedopt.closedloop.diagnose import diagnose_log
-from gcode_feedopt.closedloop.logs import MotionLog, log_warmup
+from gcode_feedopt.closedloop.logs import MotionLog, log_warmup, remove_sensor_offsets
 from gcode_feedopt.profile import load_profile
 from gcode_feedopt.profile.build import build_from_frfs
 from gcode_feedopt.twin.model import axis_twin
-from gcode_feedopt.twin.physics import draw_impulses, machine_command
+from gcode_feedopt.twin.physics import draw_impulses, machine_command, nominal_impulse
 from gcode_feedopt.vm.plant import respond
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
@@ -58,12 +59,23 @@ def read(name, data=DATA):
     return cmd, pos
 
 
-def encoder_log(name, data, prof) -> MotionLog:
-    """Log ``name`` of a data set as ``diagnose`` reads an encoder log (its warm-up for
-    ``prof``'s twin)."""
+def encoder_log(name, data, prof, offset_mm=(0.0, 0.0), subtract=True) -> MotionLog:
+    """Log ``name`` of a data set as ``diagnose`` reads an encoder log (``load_log``: its
+    warm-up for ``prof``'s twin, a sensor offset subtracted unless ``subtract`` is false), its
+    measured x, y first shifted by ``offset_mm`` (an encoder zeroed off the machine's)."""
     cmd, pos = read(name, data)
-    return MotionLog(ts_s=prof.ts_s, cmd_mm=cmd, pos_mm=pos, source=name, kind="encoder",
-                     warmup=log_warmup(cmd[:, :2], prof.ts_s, prof))
+    pos[:, :2] += offset_mm
+    log = MotionLog(ts_s=prof.ts_s, cmd_mm=cmd, pos_mm=pos, source=name, kind="encoder",
+                    warmup=log_warmup(cmd[:, :2], prof.ts_s, prof))
+    if not subtract:
+        return log
+    imp = nominal_impulse(prof)
+    mc = machine_command(prof, cmd)
+    pred = np.column_stack([respond(mc[:, i], imp[ax][0]) for i, ax in enumerate("xy")])
+    log, notes = remove_sensor_offsets(log, pred)
+    if any("cannot tell" in n for n in notes):
+        log.info["cannot_tell"] = True
+    return log
 
 
 def coverage(prof, cmd, pos, w0, learn):
@@ -108,17 +120,19 @@ def param_error(truth, got):
     return ", ".join(errs) or "-"
 
 
-def evaluate(data=DATA, prof=None):
+def evaluate(data=DATA, prof=None, offset_mm=(0.0, 0.0)):
     """One row per log of the data set: truth, diagnosis, parameter error, held-out RMS
     before / after (µm), prior RMS error of the twin's mean and of "actual = command" (µm),
-    coverage without / with learning (%), seconds."""
+    coverage without / with learning (%), seconds; the measured x, y shifted by
+    ``offset_mm`` first (an encoder zeroed off the machine's), the offsets ``load_log``
+    subtracted."""
     data = pathlib.Path(data)
     prof = prof or bench_a_profile(data)
     labels = json.loads((data / "labels.json").read_text())
     rows = []
     for e in labels["logs"]:
         name = e["file"].split("/")[-1]
-        log = encoder_log(name, data, prof)
+        log = encoder_log(name, data, prof, offset_mm)
         cmd, pos, w0 = log.cmd_mm, log.pos_mm, log.warmup
         t0 = time.perf_counter()
         d = diagnose_log(log, prof)
@@ -135,7 +149,9 @@ def evaluate(data=DATA, prof=None):
                      "before": d.holdout_rms_mm["before"], "after": d.holdout_rms_mm["after"],
                      "prior_um": prior, "command_um": none,
                      "cov0": coverage(prof, cmd, pos, w0, False),
-                     "cov1": coverage(prof, cmd, pos, w0, True), "s": dt})
+                     "cov1": coverage(prof, cmd, pos, w0, True), "s": dt,
+                     "offset_mm": log.info.get("sensor_offset_mm", {}),
+                     "cannot_tell": log.info.get("cannot_tell", False)})
     return rows
 
 
@@ -158,6 +174,9 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=pathlib.Path, default=DATA,
                     help="a data set in benchA's layout (default ../shared/data/independent)")
+    ap.add_argument("--sensor-offset", type=float, nargs=2, metavar=("DX", "DY"),
+                    default=(0.0, 0.0), help="shift every log's measured x, y by DX, DY mm (an "
+                    "encoder zeroed off the machine's) and report what load_log subtracts")
     args = ap.parse_args()
     warnings.simplefilter("ignore")
     if not args.data.is_dir():
@@ -166,8 +185,25 @@ def main():
     print(f"{args.data.name}: profile from its FRFs (profile build); held-out RMS of the twin's "
           "mean, µm x/y; prior RMS error of the twin's mean vs of actual = command, µm x, y; "
           "95 % interval coverage as predict ships it, % x/y\n")
-    print_rows(evaluate(args.data, prof))
-    if args.data != DATA:
+    rows = evaluate(args.data, prof, tuple(args.sensor_offset))
+    print_rows(rows)
+    if any(args.sensor_offset):
+        def kinds(effects):
+            return sorted((e["kind"], e["axis"]) for e in effects if e["kind"] != "none")
+
+        right = sum(kinds(r["truth"]) == kinds(r["diagnosis"]) for r in rows)
+        kept = sum(kinds(r["truth"]) == kinds(diagnose_log(
+            encoder_log(r["log"] + ".csv", args.data, prof, tuple(args.sensor_offset),
+                        subtract=False), prof).effects) for r in rows)
+        print(f"\nmeasured x, y shifted by {args.sensor_offset[0]:+g} / "
+              f"{args.sensor_offset[1]:+g} mm: diagnosis right (kinds and axes) on {right} of "
+              f"{len(rows)} ({kept} with the offsets left in)")
+        for r in rows:
+            got = ", ".join(f"{a} (error {1e3 * (o - args.sensor_offset['xy'.index(a)]):+.2f} "
+                            f"µm)" for a, o in r["offset_mm"].items()) or "nothing"
+            print(f"  {r['log']}: subtracted {got}"
+                  + ("; a constant it cannot tell from a gain" if r["cannot_tell"] else ""))
+    if args.data != DATA or any(args.sensor_offset):
         return
 
     # pooled over plants drawn from the profile's own spread (the population the chance

@@ -81,6 +81,25 @@ def read_log_columns(path: pathlib.Path, ts_s: float):
     return t, get["x_cmd"], get["y_cmd"], get.get("x"), get.get("y")
 
 
+def measured_in_machine_frame(prof, source, cmd_xy, cmd_in, xm, ym, w0):
+    """The measured columns with a sensor offset subtracted, as ``load_log`` does for
+    ``learn`` and ``diagnose`` (``closedloop.logs.remove_sensor_offsets``; its warnings)."""
+    from ..closedloop.logs import MotionLog, remove_sensor_offsets
+    from ..twin.physics import nominal_impulse
+    from ..vm.plant import respond
+
+    imp = nominal_impulse(prof)
+    pred = np.column_stack([respond(cmd_in[:, i], imp[ax][0]) for i, ax in enumerate("xy")])
+    z = np.zeros((len(xm), 1))
+    log = MotionLog(ts_s=prof.ts_s, cmd_mm=np.hstack([cmd_xy, z]),
+                    pos_mm=np.column_stack([xm, ym, z]), source=str(source), kind="encoder",
+                    warmup=min(w0, len(xm)))
+    log, notes = remove_sensor_offsets(log, pred)
+    for note in notes:
+        warnings.warn(note, LogWarning, stacklevel=2)
+    return log.pos_mm[:, 0], log.pos_mm[:, 1]
+
+
 @click.command("predict")
 @click.argument("log", type=click.Path(dir_okay=False, path_type=pathlib.Path))
 @click.option("--machine", "-m", required=True, help="Built-in profile or profile .yaml.")
@@ -114,6 +133,8 @@ def predict(log, machine, output, no_learn):
     summary = []
     # the twin acts on what the machine received: the commands through the input shaper
     cmd_in = machine_command(prof, cmd_xy)
+    if xm is not None and ym is not None:  # the sensor's zero (closedloop.logs)
+        xm, ym = measured_in_machine_frame(prof, log, cmd_xy, cmd_in, xm, ym, w0)
     off = mean_offsets(prof, cmd_in)
     for i, (axis, cmd, meas) in enumerate((("x", cmd_in[:, 0], xm), ("y", cmd_in[:, 1], ym))):
         tw = axis_twin(prof, axis)

@@ -1,3 +1,5 @@
+import warnings
+
 import numpy as np
 import pytest
 from click.testing import CliRunner
@@ -21,14 +23,21 @@ def test_predict_writes_columns(tmp_path, measured):
     log = tmp_path / "log.csv"
     write_log(log, measured=measured)
     out = tmp_path / "pred.csv"
-    res = CliRunner().invoke(cli, ["predict", "--machine", "ender3pro", str(log), "-o", str(out)])
+    with warnings.catch_warnings(record=True) as rec:
+        warnings.simplefilter("always")
+        res = CliRunner().invoke(cli, ["predict", "--machine", "ender3pro", str(log), "-o",
+                                       str(out)])
     assert res.exit_code == 0, res.output
     lines = out.read_text().splitlines()
     assert lines[0] == "t,x_mean,x_std,y_mean,y_std" and len(lines) == 1501
     arr = np.loadtxt(out, delimiter=",", skiprows=1)
     assert np.all(arr[:, 2] > 0) and np.all(arr[:, 4] > 0)
-    if measured:  # the twin learns the 0.02 mm offset of x from the log
-        assert abs(arr[-1, 1] - 40.02) < 0.01
+    said = [str(w.message) for w in rec if "sensor's zero" in str(w.message)]
+    if measured:  # x reads 0.02 mm high at rest too: the sensor's zero, subtracted
+        assert len(said) == 1 and "x by +0.0200 mm" in said[0]
+        assert abs(arr[-1, 1] - 40.0) < 0.005
+    else:
+        assert not said
 
 
 def test_predict_refuses_bad_logs(tmp_path):
