@@ -15,7 +15,7 @@ import warnings
 import click
 import numpy as np
 
-from ..closedloop.logs import resample_columns
+from ..closedloop.logs import check_log_period, resample_columns
 from ..errors import LogError, LogWarning
 from ..inputs import check_input, read_text
 from ..outputs import check_outputs, output_file
@@ -69,6 +69,7 @@ def read_log_columns(path: pathlib.Path, ts_s: float):
         row = int(np.argmax(np.abs(dt - ts) > 0.01 * ts)) + 3
         raise LogError(f"{path}:{row}: samples are not uniform (step {dt[row - 3]:.6g} s vs "
                        f"{ts:.6g} s); resample the log to a fixed period")
+    check_log_period(str(path), ts)
     if abs(ts - ts_s) > 0.01 * ts_s:  # a 1 ms or 5 ms logger: onto the profile's grid
         (data,), how = resample_columns(ts, ts_s, data)
         t = data[0, cols.index("t")] + np.arange(data.shape[0]) * ts_s

@@ -108,6 +108,8 @@ CLIP_RUN = 5
 CLIP_MARGIN_MM = 0.5
 #: A command moving slower than this (extrapolated one sample past an edge) is at rest, mm/s.
 END_SPEED_MM_S = 1.0
+#: A log sampled this coarsely or more is refused, s (``check_log_period``).
+MAX_LOG_PERIOD_S = 0.1
 #: Significance level of the sensor-offset test (the diagnosis's α).
 OFFSET_ALPHA = 0.01
 #: A constant at rest below this is left in, mm: an encoder's count leaves up to half a count
@@ -282,6 +284,23 @@ def _longest_run(mask: np.ndarray) -> int:
     d = np.diff(np.concatenate(([0], mask.astype(np.int8), [0])))
     starts, ends = np.flatnonzero(d == 1), np.flatnonzero(d == -1)
     return int(np.max(ends - starts))
+
+
+def check_log_period(name: str, ts_s: float) -> None:
+    """Refuse (one-line ``LogError``) a log sampled every ``MAX_LOG_PERIOD_S`` or more: it
+    cannot show a printer's dynamics (modes at 20–200 Hz), and a time column in ms or µs reads
+    so (a 2 ms log with t in ms steps by 2 "s"; resampled to a 2 ms Ts it became a million
+    rows of interpolated nonsense)."""
+    if ts_s < MAX_LOG_PERIOD_S:
+        return
+    for unit, k in (("milliseconds", 1e3), ("microseconds", 1e6)):
+        if 1e-5 <= ts_s / k < MAX_LOG_PERIOD_S:
+            raise LogError(f"{name}: t steps by {ts_s:g} per row: is t in {unit}? a log's t is "
+                           f"in seconds (a {ts_s / k * 1e3:g} ms logger steps by "
+                           f"{ts_s / k:g}): divide the column by {k:g}; in seconds, the log "
+                           f"is too coarse to show a printer's motion (log at 1–10 ms)")
+    raise LogError(f"{name}: sampled every {ts_s:g} s: too coarse to show a printer's motion "
+                   f"(limit {MAX_LOG_PERIOD_S:g} s); log at 1–10 ms")
 
 
 def resample_columns(ts_from_s: float, ts_to_s: float, *cols: np.ndarray):
@@ -539,6 +558,7 @@ def load_log(path, profile, *, check: bool = True, raw_axis: str = "x") -> Motio
                        f"(t,x_cmd,y_cmd,x,y)")
     else:
         log = read_encoder(name)
+        check_log_period(name, log.ts_s)
         if not np.isclose(log.ts_s, profile.ts_s, rtol=1e-3):
             log, note = resample_log(log, profile.ts_s)
             warnings.warn(note, LogWarning, stacklevel=2)

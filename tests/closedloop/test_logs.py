@@ -1,6 +1,7 @@
 """Log reading and refusal of bad logs; the observer; diagnose CLI end to end."""
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -108,6 +109,31 @@ def test_bench_a_logs_at_other_periods(tmp_path, name, truth, step):
         assert top["kind"] == "none", top
     else:
         assert (top["kind"], top["axis"]) == truth, top
+
+
+@pytest.mark.parametrize("scale, said", [
+    (1e3, r"t steps by 2 per row: is t in milliseconds\?.*divide the column by 1000"),
+    (1e6, r"t steps by 2000 per row: is t in microseconds\?.*divide the column by 1e\+06"),
+    (100.0, r"t steps by 0\.2 per row: is t in milliseconds\?.*in seconds, the log is too "
+            r"coarse to show a printer's motion"),
+])
+def test_a_time_column_not_in_seconds_is_refused(tmp_path, scale, said):
+    """A 2 ms log whose t is in ms or µs steps by 2 or 2000 "s" per row; resampled to Ts it
+    became 10⁶ rows of interpolated nonsense and ran for minutes. `learn` / `diagnose`
+    (load_log) and `predict` refuse it in one line naming the unit; a log truly sampled
+    every 0.2 s (or t in ms of a 5 kHz logger) is refused saying both. The file is
+    untouched."""
+    cmd, meas = make_log(tmp_path / "a.csv", seconds=2.0)
+    p = tmp_path / "t.csv"
+    write(p, cmd, meas, ts=TS * scale)
+    before = p.read_bytes()
+    with pytest.raises(LogError, match=said) as e:
+        load_log(p, PROFILE)
+    one_line(e)
+    res = CliRunner().invoke(cli, ["predict", "--machine", "ender3pro", str(p), "-o",
+                                   str(tmp_path / "p.csv")])
+    assert res.exit_code == 2 and re.search(said, res.output), res.output
+    assert p.read_bytes() == before and not (tmp_path / "p.csv").exists()
 
 
 def test_wrong_machine_residual(tmp_path):
