@@ -69,13 +69,15 @@ def _refine(evaluate, grid, best_p, best_v, *, rounds=3, points=11):
     return best_p, best_v
 
 
-def _scan(evaluate, grid, refine=True, coarse=None):
+def _scan(evaluate, grid, refine=True, coarse=None, coarse_all=None):
     """(best parameter, best value, points tried) of ``evaluate`` over ``grid`` (then refined).
     ``coarse``: a cheap stand-in ranking the grid (the fit of the effect alone on what the model
-    so far leaves); ``evaluate`` is then run on its best three points only."""
+    so far leaves); ``evaluate`` is then run on its best three points only. ``coarse_all``: the
+    same stand-in over the whole grid at once (an array)."""
     grid = np.asarray(grid, float)
-    if coarse is not None and grid.size > 3:
-        cv = np.array([coarse(p) for p in grid])
+    if (coarse is not None or coarse_all is not None) and grid.size > 3:
+        cv = (np.asarray(coarse_all(grid), float) if coarse_all is not None
+              else np.array([coarse(p) for p in grid]))
         vals = {int(i): evaluate(grid[i]) for i in np.argsort(cv)[::-1][:3]}
         i = max(vals, key=vals.get)
         p, v = float(grid[i]), vals[i]
@@ -128,6 +130,26 @@ class _Scorer:
         w = np.linalg.lstsq(Gf, self.rfit, rcond=None)[0]
         e = self.rfit - Gf @ w
         return -float(e @ e)
+
+    def quick_sincos(self, u, freqs) -> np.ndarray:
+        """``quick_extra`` of G = [sin, cos](2π·f·u) for every f of ``freqs`` at once (u on
+        the log's rows), in blocks: the same least squares in closed form."""
+        r, uf = self.rfit, np.asarray(u, float)[self.fit]
+        rr = float(r @ r)
+        freqs = np.asarray(freqs, float)
+        out = np.empty(freqs.size)
+        blk = max(1, min(64, 2_000_000 // max(uf.size, 1)))  # ≤ 16 MB a block matrix
+        for i0 in range(0, freqs.size, blk):
+            P = (2 * np.pi * freqs[i0:i0 + blk, None]) * uf[None, :]
+            Sn, Cs = np.sin(P), np.cos(P)
+            a, b = Sn @ r, Cs @ r
+            ss, cc, sc = (Sn * Sn).sum(1), (Cs * Cs).sum(1), (Sn * Cs).sum(1)
+            det = ss * cc - sc * sc
+            ok = det > 1e-12 * np.maximum(ss * cc, 1e-300)
+            expl = np.where(ok, (cc * a * a - 2 * sc * a * b + ss * b * b)
+                            / np.where(ok, det, 1.0), 0.0)
+            out[i0:i0 + blk] = -(rr - expl)
+        return out
 
     def quick_pred(self, p, lag=False) -> float:
         e = self.rfit - (p - self.pred)[self.fit]
@@ -196,6 +218,11 @@ def _periodic_time(S: _Scorer):
             m, tried, 3)
 
 
+#: The shortest periodic_position wavelength scanned, mm: a stepper's electrical cycle on a
+#: 16-tooth GT2 pulley (32 mm / 50) halved — its second harmonic, 0.32 mm.
+LAMBDA_MIN_MM = 0.3
+
+
 def _periodic_position(S: _Scorer):
     """A sinusoid of the commanded position, at the output or through the dynamics."""
     cmd, hd = S.cmd, S.hd
@@ -207,11 +234,20 @@ def _periodic_position(S: _Scorer):
         G = sincos_x(lam)
         return np.column_stack([respond(G[:, 0], hd), respond(G[:, 1], hd)])
 
-    grid = np.geomspace(1.0, 60.0, 300)
+    # 1–60 mm on a geometric grid; below 1 mm (a stepper's electrical cycle, 4 full steps:
+    # 0.8 mm on a 20-tooth GT2 pulley, and its harmonic 0.4 mm) a sinusoid stays in phase over
+    # the axis's range R only within Δλ/λ ≈ λ/(8R): there a uniform grid of wavenumbers,
+    # 1/(4R) apart. One scan over both: the coarse fit ranks them together.
+    dk = 1.0 / (4.0 * max(float(np.ptp(cmd[S.fit])), 1.0))
+    fine = 1.0 / np.arange(1.0 + dk, 1.0 / LAMBDA_MIN_MM + 0.5 * dk, dk)
+    grid = np.sort(np.concatenate([fine, np.geomspace(1.0, 60.0, 300)]))
     lam, v_out, n = _scan(lambda l: S.score_extra(sincos_x(l)), grid,
-                          coarse=lambda l: S.quick_extra(sincos_x(l)))
-    lam_d, v_dyn, n2 = _scan(lambda l: S.score_extra(sincos_x_dyn(l)),
-                              np.geomspace(lam / 1.1, lam * 1.1, 41),
+                          coarse_all=lambda ls: S.quick_sincos(cmd, 1.0 / ls))
+    if lam < 1.0:
+        dgrid = np.sort(1.0 / np.linspace(1.0 / lam - 20 * dk, 1.0 / lam + 20 * dk, 41))
+    else:
+        dgrid = np.geomspace(lam / 1.1, lam * 1.1, 41)
+    lam_d, v_dyn, n2 = _scan(lambda l: S.score_extra(sincos_x_dyn(l)), dgrid,
                               coarse=lambda l: S.quick_extra(sincos_x_dyn(l)))
     if v_dyn >= v_out:
         form, G, lam = "dynamics", sincos_x_dyn(lam_d), lam_d

@@ -31,7 +31,8 @@ then refined. A kind may have two forms, the one that fits better is taken (the 
   its modal fit) also washed out by the integrator in ``integral_s`` (form ``integral``);
 - ``periodic_time`` (``frequency_hz``, ``amplitude_mm``): a sinusoid in time (a fan);
 - ``periodic_position`` (``wavelength_mm``, ``amplitude_mm``): a sinusoid of the commanded
-  position (tooth pitch, screw runout) through the dynamics (``dynamics``) or at the output;
+  position (tooth pitch, screw runout, a stepper's electrical cycle: 0.3–60 mm) through the
+  dynamics (``dynamics``) or at the output;
 - ``cross_coupling`` (``from_axis`` and ``mm_per_mm_s2`` or ``coefficient``): the other axis's
   predicted acceleration through this axis's dynamics (form ``acceleration``, a frame force),
   its commanded acceleration through them (form ``command``, a motor force that follows the

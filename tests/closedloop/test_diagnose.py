@@ -122,3 +122,24 @@ def test_delay_on_steady_motion_is_a_delay(delay_s):
     assert (top["kind"], top["axis"]) == ("delay", "x"), d.effects
     assert top["params"]["seconds"] == pytest.approx(delay_s, rel=0.01)
     assert d.holdout_rms_mm["after"]["x"] < 1.5 * NOISE_MM
+
+
+@pytest.mark.parametrize("wavelength_mm", [0.8, 0.4])
+def test_a_steppers_electrical_cycle_is_named(wavelength_mm):
+    """A stepper's position error repeats every 4 full steps — 0.8 mm on a 20-tooth GT2
+    pulley (40 mm / 50), with a harmonic at 0.4 mm: the fine ripple of printed walls. 5 µm
+    of it on X (point-to-point motion, 1 µm noise): named with its wavelength within 0.5 %
+    and amplitude within 10 %, the held-out error down to the noise. With the scan stopping
+    at 1 mm (before) both were `none` at a 3.7 µm residual."""
+    rng = np.random.default_rng(31)
+    cmd = point_to_point(rng, duration_s=20.0, ts_s=PROFILE.ts_s)
+    eff = [fx.PeriodicPosition("x", wavelength_mm=wavelength_mm, amplitude_mm=0.005),
+           fx.SensorNoise("x", std_mm=NOISE_MM), fx.SensorNoise("y", std_mm=NOISE_MM)]
+    out = Plant(PROFILE, seed=3, effects=eff, nominal=True).simulate(
+        Trajectory(ts_s=PROFILE.ts_s, pos_mm=cmd, e_mm=np.zeros(len(cmd))))
+    d = diagnose_arrays(cmd, out.measured_mm, PROFILE.ts_s, IMPULSE)
+    (e,) = [e for e in d.effects if e["kind"] != "none"]
+    assert (e["kind"], e["axis"]) == ("periodic_position", "x"), d.effects
+    assert abs(e["params"]["wavelength_mm"] - wavelength_mm) <= 0.005 * wavelength_mm
+    assert abs(e["params"]["amplitude_mm"] - 0.005) <= 0.1 * 0.005
+    assert d.holdout_rms_mm["after"]["x"] <= 1.1 * NOISE_MM

@@ -84,3 +84,45 @@ def test_friction_and_backlash_apart_or_tied(physics):
         both = {e["kind"]: e["params"], tie["kind"]: tie["params"]}
         assert abs(both["backlash"]["magnitude_mm"] - 0.04) <= 0.05 * 0.04
         assert abs(both["friction"]["magnitude_mm"] - 0.02) <= 0.05 * 0.02
+
+
+def test_a_steppers_electrical_cycle_on_bench_a(physics):
+    """benchA's clean butterfly with a 4 µm, 0.8 mm ripple of the commanded X added to the
+    measured X (a stepper's 4-full-step cycle at the output): named on x, wavelength within
+    0.5 %, amplitude within 10 %; nothing else named."""
+    import numpy as np
+
+    phys, _ = physics
+    cmd, meas = bench_a_log("log_01.csv")
+    meas = meas.copy()
+    meas[:, 0] += 0.004 * np.sin(2 * np.pi * cmd[:, 0] / 0.8 + 0.3)
+    d = diagnose_arrays(cmd, meas, 0.002, phys)
+    (e,) = [e for e in d.effects if e["kind"] != "none"]
+    assert (e["kind"], e["axis"]) == ("periodic_position", "x"), d.effects
+    assert abs(e["params"]["wavelength_mm"] - 0.8) <= 0.005 * 0.8
+    assert abs(e["params"]["amplitude_mm"] - 0.004) <= 0.1 * 0.004
+
+
+@pytest.mark.parametrize("sensor", ["noise_5um", "counts_10um"])
+def test_a_coarser_sensor_changes_nothing(physics, sensor):
+    """benchA's logs as a worse sensor would give them — 5 µm RMS white noise added (10× the
+    data's), or the measured positions rounded to 10 µm counts (8× its 1.25 µm): the clean
+    butterfly stays `none`, the fan (log_07) and the backlash (log_05) are named within 5 %."""
+    import numpy as np
+
+    phys, labels = physics
+    rng = np.random.default_rng(11)
+    for name, want in (("log_01.csv", None), ("log_07.csv", ("periodic_time", "y")),
+                       ("log_05.csv", ("backlash", "x"))):
+        cmd, meas = bench_a_log(name)
+        meas = (meas + rng.normal(0.0, 0.005, meas.shape) if sensor == "noise_5um"
+                else np.round(meas / 0.01) * 0.01)
+        d = diagnose_arrays(cmd, meas, 0.002, phys)
+        got = [e for e in d.effects if e["kind"] != "none"]
+        if want is None:
+            assert got == [], (sensor, got)
+            continue
+        assert [(e["kind"], e["axis"]) for e in got] == [want], (sensor, got)
+        truth = next(e for e in labels["logs"] if e["file"].endswith(name))["effects"][0]
+        k = KEY[want[0]][-1]
+        assert abs(got[0]["params"][k] - truth["params"][k]) <= TOL * truth["params"][k]
