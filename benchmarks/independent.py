@@ -29,11 +29,12 @@ import warnings
 import numpy as np
 
 from gcode_feedopt.closedloop.diagnose import diagnose_log
-from gcode_feedopt.closedloop.logs import MotionLog, log_warmup, remove_sensor_offsets
+from gcode_feedopt.closedloop.logs import (MotionLog, log_warmup, remove_sensor_offsets,
+                                           twin_mean_xy)
 from gcode_feedopt.profile import load_profile
 from gcode_feedopt.profile.build import build_from_frfs
 from gcode_feedopt.twin.model import axis_twin
-from gcode_feedopt.twin.physics import draw_impulses, machine_command, nominal_impulse
+from gcode_feedopt.twin.physics import draw_impulses, machine_command
 from gcode_feedopt.vm.plant import respond
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
@@ -69,10 +70,7 @@ def encoder_log(name, data, prof, offset_mm=(0.0, 0.0), subtract=True) -> Motion
                     warmup=log_warmup(cmd[:, :2], prof.ts_s, prof))
     if not subtract:
         return log
-    imp = nominal_impulse(prof)
-    mc = machine_command(prof, cmd)
-    pred = np.column_stack([respond(mc[:, i], imp[ax][0]) for i, ax in enumerate("xy")])
-    log, notes = remove_sensor_offsets(log, pred)
+    log, notes = remove_sensor_offsets(log, twin_mean_xy(prof, machine_command(prof, cmd)))
     if any("cannot tell" in n for n in notes):
         log.info["cannot_tell"] = True
     return log

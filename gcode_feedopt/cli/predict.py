@@ -85,12 +85,9 @@ def read_log_columns(path: pathlib.Path, ts_s: float):
 def measured_in_machine_frame(prof, source, cmd_xy, cmd_in, xm, ym, w0):
     """The measured columns with a sensor offset subtracted, as ``load_log`` does for
     ``learn`` and ``diagnose`` (``closedloop.logs.remove_sensor_offsets``; its warnings)."""
-    from ..closedloop.logs import MotionLog, remove_sensor_offsets
-    from ..twin.physics import nominal_impulse
-    from ..vm.plant import respond
+    from ..closedloop.logs import MotionLog, remove_sensor_offsets, twin_mean_xy
 
-    imp = nominal_impulse(prof)
-    pred = np.column_stack([respond(cmd_in[:, i], imp[ax][0]) for i, ax in enumerate("xy")])
+    pred = twin_mean_xy(prof, cmd_in)
     z = np.zeros((len(xm), 1))
     log = MotionLog(ts_s=prof.ts_s, cmd_mm=np.hstack([cmd_xy, z]),
                     pos_mm=np.column_stack([xm, ym, z]), source=str(source), kind="encoder",

@@ -328,6 +328,14 @@ def resample_columns(ts_from_s: float, ts_to_s: float, *cols: np.ndarray):
     return tuple(out), how
 
 
+def twin_mean_xy(profile, machine_cmd_mm: np.ndarray) -> np.ndarray:
+    """(K, 2) the twin's mean X, Y (its nominal impulse response) on the machine's input
+    ``machine_cmd_mm`` (K, ≥2: the commands through the profile's input shaper, if any)."""
+    imp = nominal_impulse(profile)
+    return np.column_stack([respond(machine_cmd_mm[:, i], imp[ax][0])
+                            for i, ax in enumerate("xy")])
+
+
 def _settled_runs(cmd: np.ndarray, pred: np.ndarray, min_len: int) -> list[slice]:
     """Runs of at least ``min_len`` samples where the command stands still and the twin's
     mean has settled on it (within ``SETTLED_MM``): where the axis sits at its command."""
@@ -565,9 +573,7 @@ def load_log(path, profile, *, check: bool = True, raw_axis: str = "x") -> Motio
         log = dataclasses.replace(log, warmup=log_warmup(log.cmd_mm, log.ts_s, profile))
     pred = None
     if log.kind == "encoder" and np.isclose(log.ts_s, profile.ts_s, rtol=1e-3):
-        imp = nominal_impulse(profile)
-        cmd = log_machine_command(profile, log)
-        pred = np.column_stack([respond(cmd[:, i], imp[ax][0]) for i, ax in enumerate("xy")])
+        pred = twin_mean_xy(profile, log_machine_command(profile, log))
         log, notes = remove_sensor_offsets(log, pred)
         for note in notes:
             warnings.warn(note, LogWarning, stacklevel=2)
