@@ -384,7 +384,13 @@ def _gain(S: _Scorer):
 def _resonance_shift(S: _Scorer):
     """The dominant mode moved (unit weight: its frequency is the parameter). The rescaled
     form's frequency is the peak of |H| (as the virtual machine moves it); the mass form's the
-    dominant mode's natural frequency (as benchA's labels state it)."""
+    dominant mode's natural frequency (as benchA's labels state it).
+
+    A best move whose response stays inside the measured members' spread at every measured
+    frequency (``AxisPhysics.move_inside_spread``) is a machine of the profile's own
+    population, not a change of it: such a candidate is the model without the move (it
+    explains nothing and never passes; its points still count in the round's Bonferroni
+    divisor), as for a delay at the lowest end of its scan."""
     A, cmd, ts, pred = S.A, S.cmd, S.ts, S.pred
     f_mode = A.phys.mode_hz
     f_peak = fx.dominant_mode_hz(A.phys.mean, ts)
@@ -403,6 +409,9 @@ def _resonance_shift(S: _Scorer):
         if best is None or v > best[2]:
             best = (form, f1, v, p_of)
     form, f1, _, p_of = best
+    f_nominal = f_mode if form == "mass" else f_peak
+    if A.phys.move_inside_spread(form, f1, f_peak):
+        f1 = f_nominal
     m = A.fit_model(p_of(f1), S.extra, S.lag)
     return ("resonance_shift", form, {"frequency_hz": float(f1), "form": form}, m, tried, 1)
 

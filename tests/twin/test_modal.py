@@ -7,7 +7,9 @@ import numpy as np
 import pytest
 from scipy.signal import cont2discrete, oaconvolve
 
-from gcode_feedopt.twin.modal import ModalModel, bin_noise, ensemble_impulse, fit_axis, fit_modal
+from gcode_feedopt.twin.modal import (AxisModal, ModalFit, ModalModel, bin_noise, ensemble_impulse,
+                                      fit_axis, fit_modal)
+from gcode_feedopt.twin.physics import apply_effects
 
 TS = 0.002
 
@@ -185,3 +187,58 @@ def test_benchA_sets_are_not_flagged_as_missed_alike():
         R = np.array([a[:, 1] + 1j * a[:, 2] for a in A])
         fits = fit_axis(A[0][:, 0], R, tuple(p.name for p in files), nyquist_hz=250.0)
         assert not any("alike" in w for w in fits.warnings), fits.warnings
+
+
+def _servo_like(f_res: float, f_pair: float, zeta_pair: float):
+    """A loop mode at f_res (ζ 0.43) and a pair of real poles (ζ > 1), sorted by frequency as
+    a fit returns them: which comes first depends on where the member put the pair."""
+    modes = [(f_res, 0.43, 20.0, 0.8), (f_pair, zeta_pair, 5.0, 0.3)]
+    modes.sort(key=lambda m: m[0])
+    f, z, b1, b0 = (np.array(v) for v in zip(*modes))
+    return ModalFit(ModalModel(f, z, b1, b0), 0.01, 0.0)
+
+
+def test_the_mean_model_matches_modes_across_members_sorted_differently():
+    """Members of a servo (tests/foreign seed 31) put a pair of real poles below or above the
+    loop's 19 Hz mode: index by index, the mean mixed the two into a 25.4 Hz, ζ 1.37 "mode"
+    with no resonance. Matched, the mean keeps the loop mode (19.1 Hz, ζ 0.43), and each
+    member's own index of it is known — a resonance shift written by diagnose moves that
+    mode in every member, not the pair in one of them."""
+    fits = AxisModal(fits=(_servo_like(18.9, 2.0, 1.8), _servo_like(19.3, 44.0, 4.2),
+                           _servo_like(19.1, 5.9, 0.95)), labels=("a", "b", "c"))
+    assert [list(ft.model.freq_hz) for ft in fits.fits][1] == [19.3, 44.0]   # the loop mode first
+    mm = fits.mean_model()
+    dom = mm.dominant
+    assert mm.freq_hz[dom] == pytest.approx((18.9 + 19.3 + 19.1) / 3)
+    assert mm.damping[dom] == pytest.approx(0.43)
+    assert fits.member_modes(dom) == (1, 0, 1)
+    shift = {"frequency_hz": 0.9 * mm.freq_hz[dom], "form": "mass"}
+    moved = apply_effects(fits, [{"kind": "resonance_shift", "params": shift}])
+    for before, after, k in zip(fits.fits, moved.fits, (1, 0, 1)):
+        assert after.model.freq_hz[k] == pytest.approx(0.9 * before.model.freq_hz[k])
+        other = 1 - k
+        assert after.model.freq_hz[other] == before.model.freq_hz[other]
+
+
+def test_the_mean_model_of_members_in_one_order_is_the_parameter_mean():
+    fits = AxisModal(fits=(_servo_like(18.9, 40.0, 1.8), _servo_like(19.3, 44.0, 4.2)),
+                     labels=("a", "b"))
+    mm = fits.mean_model()
+    np.testing.assert_array_equal(mm.freq_hz, [(18.9 + 19.3) / 2, 42.0])
+    np.testing.assert_array_equal(mm.damping, [0.43, (1.8 + 4.2) / 2])
+
+
+def test_the_mode_that_carries_the_axis_is_matched_not_the_nearest_small_term():
+    """A corexy's members (tests/foreign seed 45): beside the 56 Hz belt mode (b0 ≈ 1) one
+    fits a small term above it, another one below it. In frequency and damping alone the
+    lower small term (50.8 Hz, ζ 0.04) lies nearer the first member's belt mode than the belt
+    mode does; its static share says which is which."""
+    a = ModalModel(np.array([56.28, 60.68]), np.array([0.103, 0.128]), np.array([0.0, 0.0]),
+                   np.array([0.981, 0.012]))
+    b = ModalModel(np.array([50.83, 56.36]), np.array([0.042, 0.102]), np.array([0.0, 0.0]),
+                   np.array([0.022, 0.969]))
+    fits = AxisModal(fits=(ModalFit(a, 0.01, 0.0), ModalFit(b, 0.01, 0.0)), labels=("a", "b"))
+    mm = fits.mean_model()
+    belt = int(np.argmax(mm.b0))
+    assert fits.member_modes(belt) == (0, 1)
+    assert mm.freq_hz[belt] == pytest.approx((56.28 + 56.36) / 2)

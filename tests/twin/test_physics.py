@@ -13,7 +13,9 @@ from gcode_feedopt.optimize.slowdown import SlowdownSettings
 from gcode_feedopt.profile import load_profile
 from gcode_feedopt.profile.builtin import modal_frf
 from gcode_feedopt.profile.schema import FRFSet, Mode
-from gcode_feedopt.twin.physics import RING_FRACTION, memory_time_s, ring_time_s, settle_time_s
+from gcode_feedopt.twin.modal import ModalModel
+from gcode_feedopt.twin.physics import (RING_FRACTION, AxisPhysics, memory_time_s, ring_time_s,
+                                        settle_time_s)
 
 
 def _one_mode_profile(freq_hz, zeta):
@@ -70,3 +72,31 @@ def test_the_built_in_machines_ring_for_less_than_the_slow_downs_defaults():
         prof = load_profile(name)
         assert settle_time_s(prof) <= ring_time_s(prof) == memory_time_s(prof)
         assert st.seeing_out(memory_time_s(prof)) == st
+
+
+def _members_around(freq_hz, spread, zeta=0.05):
+    """Three one-mode members at freq_hz·(1 − spread, 1, 1 + spread), their parameter mean the
+    representative model (as ``ModalSet.mean_model`` takes it)."""
+    ms = tuple(ModalModel(np.array([freq_hz * r]), np.array([zeta]), np.array([0.0]),
+                          np.array([1.0])) for r in (1 - spread, 1.0, 1 + spread))
+    return AxisPhysics(np.zeros(8), np.zeros((8, 0)), freq_hz, model=ms[1], members=ms,
+                       band_hz=np.arange(2.0, 150.0, 0.5))
+
+
+@pytest.mark.parametrize("form", ["mass", "scale"])
+def test_a_move_inside_the_members_spread_is_no_change_of_the_machine(form):
+    """Members 1 % apart: a move of a fifth of that stays inside their spread at every
+    frequency; a 5 % move does not (it leaves the spread at the peak, tens of times over)."""
+    phys = _members_around(50.0, 0.01)
+    assert phys.move_inside_spread(form, 50.1, 50.0)
+    assert phys.move_inside_spread(form, 49.9, 50.0)
+    assert not phys.move_inside_spread(form, 47.5, 50.0)
+    assert not phys.move_inside_spread(form, 52.5, 50.0)
+
+
+def test_no_spread_to_compare_with_leaves_every_move_a_change():
+    one = _members_around(50.0, 0.01)
+    one = dataclasses.replace(one, members=one.members[:1])
+    assert not one.move_inside_spread("mass", 50.1, 50.0)
+    assert not dataclasses.replace(_members_around(50.0, 0.01), band_hz=None).move_inside_spread(
+        "mass", 50.1, 50.0)
