@@ -338,12 +338,11 @@ class AxisModal:
 
     def member_modes(self, index: int) -> tuple:
         """Each member's index of the mean model's mode ``index`` (``mean_model``)."""
-        got = self._matching()
-        if got is None:
-            f = self.mean_model().freq_hz[index]
+        model, order, perms = self._mean()
+        if perms is None:
+            f = model.freq_hz[index]
             return tuple(int(np.argmin(np.abs(m.freq_hz - f))) for m in self.models)
-        r = self._mean_order()[index]
-        return tuple(int(p[r]) for p in got)
+        return tuple(int(p[order[index]]) for p in perms)
 
     def mean_model(self) -> ModalModel:
         """Parameter-wise mean of the members, mode matched to mode (``_matching``), sorted by
@@ -351,16 +350,12 @@ class AxisModal:
         twin itself uses the mean of the responses)."""
         return self._mean()[0]
 
-    def _mean_order(self) -> np.ndarray:
-        return self._mean()[1]
-
     def _mean(self):
-        """(mean_model, order): ``order[i]`` is the first member's mode that is the mean's
-        mode i."""
+        """(mean_model, order, perms): ``order[i]`` is the first member's mode that is the
+        mean's mode i, ``perms`` the matching (``_matching``; None: members by index)."""
         ms = self.models
-        perms = self._matching()
-        if perms is None:
-            perms = [np.arange(m.n_modes) for m in ms]
+        matched = self._matching()
+        perms = matched if matched is not None else [np.arange(m.n_modes) for m in ms]
 
         # a silenced mode (zero residues) stands for no mode: the matched mode's mean is
         # the members' that have it (seed 50, a corexy: one member's silenced 164 Hz line
@@ -377,7 +372,7 @@ class AxisModal:
         return ModalModel(freq_hz=mean("freq_hz")[order], damping=mean("damping")[order],
                           b1_rad_s=mean("b1_rad_s")[order], b0=mean("b0")[order],
                           lag_s=float(np.mean([m.lag_s for m in ms])),
-                          dc_gain=float(np.mean([m.dc_gain for m in ms]))), order
+                          dc_gain=float(np.mean([m.dc_gain for m in ms]))), order, matched
 
 
 def _silent(m: ModalModel) -> np.ndarray:

@@ -381,7 +381,7 @@ def axis_physics(profile) -> dict:
                 return cache[key]
 
             mode = f_dom
-            force = _force_response(fits.mean_model(), ts, n)
+            force = _force_response(mm, ts, n)
             # the members' own dominant modes: how far the known uncertainty moves it
             # (the same mode in each, matched mode to mode: AxisModal.member_modes; which mode
             # is largest may differ between members of two near-equal modes)
