@@ -203,7 +203,9 @@ def test_clean_logs_of_a_plant_inside_the_spread_are_none(which, dataset):
     representative model averaged index by index made a 7.0 Hz, ζ 0.98 "dominant mode" of
     them, whose −0.6 % move took 1.6 of the 2.1 µm the draw leaves on y: "resonance_shift y
     6.99 Hz" was named on two of three clean logs under one BLAS kernel's last bits (OpenBLAS on
-    an AMD EPYC), on none under another's (AxisModal.mean_model matches modes now)."""
+    an AMD EPYC), on none under another's (AxisModal.mean_model matches modes now). On an AMD
+    EPYC without AVX-512, log_01 then had "friction y 0.027 mm" named in the integral form
+    with τ_i 5 ms, the lowest end of its scan (catalogue._friction: not resolved now)."""
     out, labels, prof = dataset(which)
     inherent = {(e["kind"], e["axis"]) for e in labels["inherent"]}
     for e in labels["logs"]:
