@@ -581,3 +581,22 @@ def test_corpus_size():
     for sub in ("optimize", "simulate", "predict", "compare", "diagnose", "learn", "identify",
                 "profile", "batch"):
         assert sub in words, sub
+
+
+def test_a_long_path_is_shortened_before_the_fix_is_cut():
+    """An error about a file deep in folders (a logger's, pytest's workers'): the line keeps
+    what, the file with its folder, and the fix; only a message still too long is cut in the
+    middle."""
+    from gcode_feedopt.cli import MAX_ERROR_CHARS, one_line
+
+    deep = "/home/maker/printers/ender/2026-11/logs of the week/" .replace(" ", "_") * 3
+    msg = (f"{deep}day3/log.csv: t steps by 2 per row: is t in milliseconds? a log's t is in "
+           "seconds (a 2 ms logger steps by 0.002): divide the column by 1000; in seconds, the "
+           "log is too coarse to show a printer's motion (log at 1–10 ms)")
+    assert len(msg) > MAX_ERROR_CHARS
+    got = one_line(msg)
+    assert len(got) <= MAX_ERROR_CHARS
+    assert got.startswith(".../day3/log.csv: t steps by 2 per row")
+    assert "divide the column by 1000" in got and " ... " not in got
+    assert one_line("see https://example.com/" + "a/" * 200).count(" ... ") == 1
+    assert one_line("short /a/b/c.csv") == "short /a/b/c.csv"

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import importlib
 import os
+import re
 import sys
 import warnings
 
@@ -134,10 +135,26 @@ INTERNAL_EXIT = 70
 MAX_ERROR_CHARS = 300
 
 
+#: a path with at least two directories: its directories, then its last part
+_PATH = re.compile(r"(?<![^\s(\"'])((?:[^\s/]*/){2,})([^\s/]*)")
+
+
+def _short_path(m: re.Match) -> str:
+    """``.../folder/name`` for a path whose directories are long (a URL is kept whole)."""
+    if "://" in m.group(0) or len(m.group(1)) <= 24:
+        return m.group(0)
+    return ".../" + m.group(1).rstrip("/").rsplit("/", 1)[-1] + "/" + m.group(2)
+
+
 def one_line(message: str, limit: int = MAX_ERROR_CHARS) -> str:
-    """``message`` on one line of at most ``limit`` characters (the middle cut out: the start
-    says what and where, the end the fix)."""
+    """``message`` on one line of at most ``limit`` characters. Too long, the files it names
+    lose their directories but the last first (``.../logs/log.csv``: a user's path is often longer than the
+    message, and cutting the middle took the fix with it — "divi ... lumn by 1000" for a log
+    under pytest's worker folders); still too long (a 10 MB token quoted back), the middle is
+    cut out: the start says what and where, the end the fix."""
     text = " ".join(str(message).split())
+    if len(text) > limit:
+        text = _PATH.sub(_short_path, text)
     if len(text) <= limit:
         return text
     head = (limit - 5) * 2 // 3
