@@ -148,10 +148,10 @@ def _short_path(m: re.Match) -> str:
 
 def one_line(message: str, limit: int = MAX_ERROR_CHARS) -> str:
     """``message`` on one line of at most ``limit`` characters. Too long, the files it names
-    lose their directories but the last first (``.../logs/log.csv``: a user's path is often longer than the
-    message, and cutting the middle took the fix with it — "divi ... lumn by 1000" for a log
-    under pytest's worker folders); still too long (a 10 MB token quoted back), the middle is
-    cut out: the start says what and where, the end the fix."""
+    lose their directories but the last first (``.../logs/log.csv``: a user's path is often
+    longer than the message, and cutting the middle took the fix with it — "divi ... lumn by
+    1000" for a log under pytest's worker folders); still too long (a 10 MB token quoted
+    back), the middle is cut out: the start says what and where, the end the fix."""
     text = " ".join(str(message).split())
     if len(text) > limit:
         text = _PATH.sub(_short_path, text)
