@@ -589,7 +589,7 @@ def test_a_long_path_is_shortened_before_the_fix_is_cut():
     middle."""
     from gcode_feedopt.cli import MAX_ERROR_CHARS, one_line
 
-    deep = "/home/maker/printers/ender/2026-11/logs of the week/" .replace(" ", "_") * 3
+    deep = "/home/maker/printers/ender/2026-11/logs_of_the_week/" * 3
     msg = (f"{deep}day3/log.csv: t steps by 2 per row: is t in milliseconds? a log's t is in "
            "seconds (a 2 ms logger steps by 0.002): divide the column by 1000; in seconds, the "
            "log is too coarse to show a printer's motion (log at 1–10 ms)")

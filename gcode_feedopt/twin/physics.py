@@ -342,15 +342,15 @@ class AxisPhysics:
             return np.mean([m.response(freq) for m in self.members], axis=0)
 
         R = np.array([m.response(f) for m in self.members])
-        n = R.shape[0]
-        s = np.sqrt(np.sum(np.abs(R - R.mean(axis=0)) ** 2, axis=0) / (n - 1))
+        n, mean = R.shape[0], R.mean(axis=0)
+        s = np.sqrt(np.sum(np.abs(R - mean) ** 2, axis=0) / (n - 1))
         k = math.sqrt(stats.f.ppf(0.95, 2, 2 * (n - 1)) * (1.0 + 1.0 / n))
         if form == "mass":
             dom = self.model.dominant
             moved = self.model.mode_shifted(dom, f1 / float(self.model.freq_hz[dom]))
             change = moved.response(f) - self.model.response(f)
         else:
-            change = members_mean(f * f_peak / f1) - members_mean(f)
+            change = members_mean(f * f_peak / f1) - mean
         return bool(np.all(np.abs(change) <= k * s))
 
 
