@@ -14,7 +14,8 @@ plant, writes the encoder log, reads it back as a user's log (closedloop.logs.lo
 ``learn``s the profile from it (closedloop.learn.learn_logs). Printed per round: cycle time,
 RMS γ against (1 − η)·E_max, fraction of extruded samples within E_max, the twin's open-loop
 prediction RMS on that print, and what learn wrote per axis: the level of what the twin
-cannot predict (σ_r, at rest) and its part growing with the commanded speed (k_v, σ = k_v·|v|). The conservative plan (the largest uniform scale of V and A whose run on the first
+cannot predict (σ_r, at rest), its part growing with the commanded speed (k_v, σ = k_v·|v|) and
+the RMS on that print of its residual filter (filt: what is a filter of the command, twin.residual). The conservative plan (the largest uniform scale of V and A whose run on the first
 print's plant keeps RMS γ ≤ (1 − η)·E_max) is the cycle time the loop must not exceed.
 
 Targets (issue 19): by the third print, within ≥ η and RMS γ ≤ (1 − η)·E_max, cycle ≤
@@ -61,6 +62,7 @@ class Round:
     pred_after_um: dict
     step_scale: dict
     kv_ms: dict
+    filter_um: dict
 
 
 def fan_plant(prof, seed: int, axis: str, freq_hz: float, amp_mm: float, phase_rad: float,
@@ -95,9 +97,10 @@ def closed_loop(prof, path, *, rounds: int, seed: int, fan: tuple, tol: float, e
         after = {r["axis"]: 1000 * r["prediction_rms_mm"]["after"] for r in recs}
         steps = {r["axis"]: r["step_scale"] for r in recs}
         kv = {r["axis"]: 1000 * r.get("noise_per_speed_s", 0.0) for r in recs}
+        filt = {r["axis"]: 1000 * r.get("residual_filter_log_rms_mm", 0.0) for r in recs}
         learned = {r["axis"]: 1000 * r.get("noise_level_mm", float("nan")) for r in recs}
         r = Round(k, m.cycle_time_s, 1000 * m.rms_gamma_mm, m.within_fraction, pred, learned, dt,
-                  after, steps, kv)
+                  after, steps, kv, filt)
         out.append(r)
         if on_round:
             on_round(r)
@@ -132,14 +135,16 @@ def main(argv=None):
           f"η {a.eta:g}; conservative {cons_s:.3f} s (limits x {scale:.3f})")
     print(f"{'print':>5} {'cycle s':>8} {'RMS γ µm':>9} {'limit':>6} {'within':>7} "
           f"{'pred x µm':>9} {'pred y µm':>9} {'level x µm':>10} {'level y µm':>10} "
-          f"{'k_v x ms':>8} {'k_v y ms':>8} {'plan s':>7}"
+          f"{'k_v x ms':>8} {'k_v y ms':>8} {'filt x µm':>9} {'filt y µm':>9} {'plan s':>7}"
           f"  learned step (prediction RMS after, µm)")
 
     def show(r):
         print(f"{r.k:5d} {r.cycle_s:8.3f} {r.rms_gamma_um:9.2f} {lim:6.2f} {r.within:7.4f} "
               f"{r.pred_rms_um.get('x', np.nan):9.1f} {r.pred_rms_um.get('y', np.nan):9.1f} "
               f"{r.learned.get('x', np.nan):10.1f} {r.learned.get('y', np.nan):10.1f} "
-              f"{r.kv_ms.get('x', np.nan):8.3f} {r.kv_ms.get('y', np.nan):8.3f} {r.compute_s:7.2f}  "
+              f"{r.kv_ms.get('x', np.nan):8.3f} {r.kv_ms.get('y', np.nan):8.3f} "
+              f"{r.filter_um.get('x', np.nan):9.1f} {r.filter_um.get('y', np.nan):9.1f} "
+              f"{r.compute_s:7.2f}  "
               + ", ".join(f"{a} x{r.step_scale[a]:.2g} ({r.pred_after_um[a]:.1f})" for a in r.step_scale))
         sys.stdout.flush()
 

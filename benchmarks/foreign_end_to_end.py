@@ -13,6 +13,8 @@ the twin was not built from.
     python benchmarks/foreign_end_to_end.py --seeds 1 6 --eta 0.9 0.99 --tol 0.05
     python benchmarks/foreign_end_to_end.py --seeds 0 --amax 3000 --tol 0.1 --prints 4
 
+``--calibration``: also, per axis, how the learned twin's interval covers the print it plans
+(RMS of error/σ, share inside the 99 % interval).
 ``--prints N``: also print after print, each planned with the profile learned so far and its
 log ``learn``ed into it (N prints, N − 1 learned).
 ``--shaper mzv`` (``--causal``): the machines print through an input shaper at their dominant
@@ -57,6 +59,28 @@ def learned(path, prof, plant, tol, eta, tmp):
     return learn_logs(prof, [load_log(log, prof)])[0]
 
 
+def calibration(path, prof, plant, tol, eta) -> str:
+    """How the twin of ``prof`` covers the print pidd plans with it: per axis, the RMS of
+    (executed − the twin's open-loop mean) / its σ and the share of samples inside the 99 %
+    interval (what ``predict`` shows for that plan)."""
+    import numpy as np
+
+    from gcode_feedopt.optimize.methods import plan_schedule, vm_trajectory
+    from gcode_feedopt.twin.model import axis_twin
+
+    sch = plan_schedule("pidd", path, prof, tolerance_mm=tol, stringency=eta)
+    tr = vm_trajectory(path, sch.s_mm, sch.ts_s)
+    act = plant.run(tr)
+    out = []
+    for i, ax in enumerate("xy"):
+        mean, std = axis_twin(prof, ax).run(tr.pos_mm[:, i], None, learn=False)
+        z = (act[:, i] - mean) / std
+        out.append(f"{ax} error {1e3 * np.sqrt(np.mean((act[:, i] - mean) ** 2)):.1f} µm, "
+                   f"median σ {1e3 * np.median(std):.2f} µm, RMS z {np.sqrt(np.mean(z * z)):.2f}, "
+                   f"{100 * np.mean(np.abs(z) < 2.576):.1f} % inside 99 %")
+    return "; ".join(out)
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, nargs="*", default=list(range(10)))
@@ -66,6 +90,8 @@ def main():
     ap.add_argument("--amax", type=float, default=5000.0)
     ap.add_argument("--prints", type=int, default=1,
                     help="also N prints in sequence, each learned into the profile")
+    ap.add_argument("--calibration", action="store_true",
+                    help="also how the learned twin's interval covers the print it plans")
     ap.add_argument("--shaper", choices=("zv", "zvd", "mzv"), default=None,
                     help="print through this input shaper at the dominant modes")
     ap.add_argument("--causal", action="store_true", help="the shaper's pulses causal (Marlin)")
@@ -96,10 +122,14 @@ def main():
             rows = {m: run(m, path, prof, plant, args.tol, eta)
                     for m in ("kinematic", "conservative", "pidd")}
             k, c, p = rows["kinematic"], rows["conservative"], rows["pidd"]
+            cal = "–"
             try:
                 q = run("pidd", path, learned(path, prof, plant, args.tol, eta, tmp), plant,
                         args.tol, eta)
                 tail = f"{q.cycle_s:.3f} | {q.rms_gamma_um:.2f} | {q.within:.4f}"
+                if args.calibration:
+                    cal = calibration(path, learned(path, prof, plant, args.tol, eta, tmp),
+                                      plant, args.tol, eta)
             except FeedOptError as exc:  # the learned noise level alone fills the tolerance
                 tail = f"refused: {str(exc).split(';')[0]} | – | –"
             lim = 1000 * (1 - eta) * args.tol
@@ -107,6 +137,8 @@ def main():
                   f"({c.info.get('conservative_scale', 1.0):.3f}) | {p.cycle_s:.3f} | "
                   f"{p.cycle_s / c.cycle_s:.3f} | {p.rms_gamma_um:.2f} ({lim:.2f}) | "
                   f"{p.within:.4f} | {k.within:.4f} | {tail} |", flush=True)
+            if args.calibration:
+                print(f"|   | the learned twin on its print: {cal} |", flush=True)
             if args.prints > 1:
                 seq, p_k = [], prof
                 for k in range(args.prints):

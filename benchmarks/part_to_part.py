@@ -6,7 +6,8 @@ does (offline: what the profile learned is all the twin knows), runs that plan o
 machine, writes the encoder log, and ``learn``s the profile from it (closedloop.learn: bounded
 update). Printed per round: the twin's open-loop prediction RMS on that print (before
 learning from it), RMS tolerance violation, fraction within tolerance, cycle time, and what
-learn wrote per axis (step scale, level at rest σ_r, speed part k_v: docs/twin.md §7).
+learn wrote per axis (step scale, level at rest σ_r, speed part k_v, the RMS of the residual
+filter on that print: docs/twin.md §7).
 (benchmarks/closed_loop.py is the same loop with a fan of random phase.)
 
     python benchmarks/part_to_part.py [--rounds 5] [--method pidd] [--effect SPEC]
@@ -65,7 +66,9 @@ def main():
         prof, recs = learn_logs(prof, [load_log(log_path, prof)])
         pr = {q["axis"]: q["prediction_rms_mm"]["before"] for q in recs}
         steps = ", ".join(f"{q['axis']} x{q['step_scale']:.2g} σ_r {q['noise_level_mm'] * 1e3:.1f} µm "
-                          f"k_v {q['noise_per_speed_s'] * 1e3:.2f} ms" for q in recs)
+                          f"k_v {q['noise_per_speed_s'] * 1e3:.2f} ms "
+                          f"filter {q.get('residual_filter_log_rms_mm', 0.0) * 1e3:.1f} µm"
+                          for q in recs)
         print(f"{k:5d} {pr.get('x', np.nan) * 1e3:13.1f} {pr.get('y', np.nan) * 1e3:13.1f} "
               f"{m.rms_gamma_mm * 1e3:11.2f} {m.within_fraction:7.3f} {m.cycle_time_s:8.3f}  {steps}")
 

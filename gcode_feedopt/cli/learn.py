@@ -79,5 +79,7 @@ def _learn_each(logs, profile, skip_bad, progress, load_log, learn_logs):
                        f"{pr['after'] * 1e3:.1f} µm (step x{r['step_scale']:.3g}"
                        f"{', bounded' if r['step_clipped'] else ''}{warm}); what the twin "
                        f"cannot predict: {r['noise_level_mm'] * 1e3:.1f} µm at rest + "
-                       f"{r['noise_per_speed_s'] * 1e3:.2f} ms x speed")
+                       f"{r['noise_per_speed_s'] * 1e3:.2f} ms x speed + a filter of the "
+                       f"motion ({r.get('residual_filter_log_rms_mm', 0.0) * 1e3:.1f} µm RMS "
+                       f"on this log)")
     return profile, n_ok

@@ -32,7 +32,8 @@ from ..plan.request import PlanRequest
 from ..plan.kinematic import (effective_limits, plan_kinematic, plan_trapezoids, planner_limits,
                               segment_plan)
 from ..twin.extensions import extra_variance_mm2, motion_offsets
-from ..twin.model import axis_noise_mm, axis_prior, learned_variance_terms, twin_impulse
+from ..twin.model import (axis_noise_mm, axis_prior, axis_residual, learned_variance_terms,
+                          twin_impulse)
 from ..twin.physics import memory_time_s
 from ..vm.metrics import evaluate
 from ..vm.plant import Plant
@@ -132,8 +133,9 @@ def make_twin_predictor(profile, method: str, *, learn: bool):
     ``learn`` measured on the machine's logs, the profile's σ_ε until then, plus the variance
     of a fan ``diagnose -o`` wrote as an extension, twin.extensions.extra_variance_mm2) and
     the parts of it that grow with the commanded speed (twin.model.learned_speed_noise_s) and
-    with the predicted dynamic error (twin.model.learned_deviation_noise), which widen the
-    chance constraint by what the twin cannot predict. (The extensions' deterministic terms,
+    with the predicted dynamic error (twin.model.learned_deviation_noise) or run through the
+    filters of the command that ``learn`` found the twin to miss (twin.residual), which widen
+    the chance constraint by what the twin cannot predict. (The extensions' deterministic terms,
     twin.extensions.mean_offsets, are not part of the predictor: the slow-down optimizer adds
     the cross-coupling's, twin.extensions.motion_offsets.)"""
     tw = profile.twin
@@ -145,7 +147,8 @@ def make_twin_predictor(profile, method: str, *, learn: bool):
     return TwinPredictor(irs, tw.n2, tw.n3, s2, [p[0] for p in priors],
                          [p[1] for p in priors], use_feature_var=(method != "dd"),
                          learn=learn and method in ("dd", "pidd"),
-                         speed_var=[t[0] for t in terms], deviation_var=[t[1] for t in terms])
+                         speed_var=[t[0] for t in terms], deviation_var=[t[1] for t in terms],
+                         residual=[axis_residual(profile, ax, method=method) for ax in ("x", "y")])
 
 
 def _pieces(path, z_pieces: bool = True):

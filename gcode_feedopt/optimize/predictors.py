@@ -34,6 +34,14 @@ def _fir_tail(h: np.ndarray, dev_hist: np.ndarray, dev_h: np.ndarray) -> np.ndar
     return full[past.size:past.size + n]
 
 
+def _taps_like(G, n_taps: int) -> np.ndarray:
+    """(n_taps, k) of filters G (m, k) cut or zero-padded to n_taps rows; (n_taps, 0) for None."""
+    if G is None:
+        return np.zeros((n_taps, 0))
+    G = np.asarray(G, float).reshape(np.shape(G)[0], -1)[:n_taps]
+    return np.vstack([G, np.zeros((n_taps - G.shape[0], G.shape[1]))])
+
+
 def _jac(h: np.ndarray, n: int) -> np.ndarray:
     col = np.zeros(n)
     m = min(n, h.size)
@@ -122,8 +130,13 @@ class TwinPredictor:
 
     def __init__(self, irs, n2: int, n3: int, sigma2: float, mu, cov, *,
                  use_feature_var: bool = True, learn: bool = False, speed_var=0.0,
-                 deviation_var=0.0):
+                 deviation_var=0.0, residual=None):
         self.h = [np.asarray(ir.mean, float) for ir in irs]
+        #: per axis (x, y), (n_taps, k) filters of the command deviation whose outputs the
+        #: twin missed on the machine's logs (twin.residual, closedloop.learn), variance
+        #: Σ_j (G_j * w)²; held to the impulse response's length (learn fits them at it)
+        self.G = [_taps_like(None if residual is None else residual[a], self.h[a].size)
+                  for a in range(2)]
         self.ts_s = float(irs[0].ts_s)
         #: k_v² per axis (x, y), s²: what the twin cannot predict that grows with the axis's
         #: commanded speed v (an unmodelled lag), variance k_v²·v² (closedloop.learn)
@@ -178,7 +191,7 @@ class TwinPredictor:
             if len(self._free) > 8:
                 self._free.clear()
             W = self._history_matrix(a, k0, n)
-            got = (W @ self.h[a], W @ self.L[a])
+            got = (W @ self.h[a], W @ self.L[a], W @ self.G[a])
             self._free[key] = got
         return got
 
@@ -200,7 +213,7 @@ class TwinPredictor:
 
     def _xhat_h(self, a: int, k0: int, dev_h: np.ndarray):
         n = dev_h.size
-        free_m, free_Y = self._free_response(a, k0, n)
+        free_m, free_Y, _ = self._free_response(a, k0, n)
         Jx, TL = self._toeplitz(a, n)
         xm = free_m + Jx @ dev_h
         if TL.shape[0]:
@@ -272,6 +285,9 @@ class TwinPredictor:
             var = var + self.kv2[a] * v * v
         if self.rho2[a]:
             var = var + self.rho2[a] * (m - dev_h) ** 2
+        if self.G[a].shape[1]:
+            R = self._residual_h(a, k0, dev_h)
+            var = var + np.einsum("ij,ij->i", R, R)
         if self.use_var and Y.shape[1]:
             # β̄ᵀΣ_ψβ̄ with the full feature covariance (as twin.model.AxisTwin.run): the
             # random part of Σ_lag c_lag x̂(t − lag), c = +β_x on x̂ lags, −β_e on e lags
@@ -284,6 +300,17 @@ class TwinPredictor:
             ve = np.concatenate([pev, xv])[ie] @ dg[2 + n2:] if n3 else 0.0
             var = var + quad + vx + ve
         return m, Jm, np.sqrt(np.maximum(var, 0.0)), xm, xv, Y
+
+    def _residual_h(self, a: int, k0: int, dev_h: np.ndarray) -> np.ndarray:
+        """(n, k): the residual filters run over the history and the horizon deviations."""
+        n = dev_h.size
+        free_G = self._free_response(a, k0, n)[2]
+        key = ("resid", a, n)
+        TG = self._toep.get(key)
+        if TG is None:
+            TG = np.stack([_jac(g, n) for g in self.G[a].T])
+            self._toep[key] = TG
+        return free_G + (TG @ dev_h).T
 
     def _lag_index(self, n: int):
         """Index arrays (n, n2+1) and (n, n3) into [history, horizon] of the x̂ and e lags."""
@@ -566,9 +593,11 @@ def predict_trajectory(tp: TwinPredictor, cmd: np.ndarray, series: bool = False,
         L = tp.L[a]
         r = L.shape[1]
         # x̂ and the factor series Y (x̂'s uncertainty) in one batched convolution
-        conv = _causal_many(w, np.column_stack([tp.h[a], L]))
+        G = tp.G[a]
+        conv = _causal_many(w, np.column_stack([tp.h[a], L, G]))
         xm = conv[0]
-        Y = conv[1:]                      # (r, K)
+        Y = conv[1:1 + r]                 # (r, K)
+        R = conv[1 + r:]                  # (k, K): the residual filters' outputs
         xv = np.einsum("ij,ij->j", Y, Y) if r else np.zeros(K)
         wx, we = mu[1:2 + n2], mu[2 + n2:]
         cx = np.zeros(n2 + 1)            # cx[lag] = weight of x̂(t − lag)
@@ -591,6 +620,8 @@ def predict_trajectory(tp: TwinPredictor, cmd: np.ndarray, series: bool = False,
             var += tp.kv2[a] * v * v
         if tp.rho2[a]:
             var += tp.rho2[a] * (m - w) ** 2
+        if R.shape[0]:
+            var += np.einsum("ij,ij->j", R, R)
         # ψᵀΣ_βψ in chunks of rows, over the feature columns that are not identically zero
         # (offline with the physics prior every self-predicted error e is 0)
         use_e = bool(n3) and bool(np.any(e != 0.0))

@@ -11,6 +11,7 @@ Without measurements, the unknown errors are the twin's own predictions x̃ − 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -19,6 +20,7 @@ from scipy.linalg.blas import dger
 from .features import factor_series, feature_matrix, n_features, physics_prior, shift_invariant_cov, xhat
 from .frf import ImpulseResponse
 from .physics import axis_impulse
+from .residual import filter_series
 
 
 @dataclass
@@ -34,6 +36,9 @@ class AxisTwin:
             speed (variance kv2·v², s²) and to the dynamic error it predicts (rho2·d², d the
             predicted minus the commanded position): added to an open-loop prediction's
             variance, as the optimizer's predictors add them (optimize.predictors).
+        resid: (n_taps, k) filters of the command deviation w whose outputs ``learn`` found
+            the twin to miss on the machine's logs (twin.residual): an open-loop prediction
+            adds Σ_j (resid[:, j] * w)² to its variance, as the optimizer's predictors do.
     """
 
     ir: ImpulseResponse
@@ -46,6 +51,7 @@ class AxisTwin:
     curvature: str = "moment"
     kv2: float = 0.0
     rho2: float = 0.0
+    resid: np.ndarray | None = None
 
     def run(self, x_cmd: np.ndarray, x_meas: np.ndarray | None = None, *, learn: bool = True,
             sigma_eps_mm: float | None = None, offset_mm: np.ndarray | None = None,
@@ -160,6 +166,9 @@ class AxisTwin:
             v = np.zeros(T)
             v[1:] = np.diff(w) / self.ir.ts_s
             var = var + self.kv2 * v * v + self.rho2 * (mean - w) ** 2
+        if not measured and self.resid is not None and self.resid.size:
+            R = filter_series(self.resid, w)
+            var = var + np.einsum("ij,ij->j", R, R)
         return mean + ref, np.sqrt(np.maximum(var, 0.0))
 
     def _run_joint(self, M, Y, x_dev, lag_x, lag_e, maxlag, ref, warmup=0):
@@ -320,6 +329,28 @@ def learned_deviation_noise(prior) -> float:
     return _learned(prior, "noise_per_deviation") or 0.0
 
 
+def learned_residual(prior) -> np.ndarray | None:
+    """(n_taps, k): the filters of the command whose outputs ``learn`` found the twin to miss
+    on this axis's logs (twin.residual), each scaled by the square root of its weight in the
+    average over logs; None when nothing was learned. Kept in the last record of
+    ``Prior.learned_from`` that has them (``residual_filters``: weight and taps each)."""
+    if prior is None:
+        return None
+    for rec in reversed(tuple(prior.learned_from)):
+        got = rec.get("residual_filters") if isinstance(rec, dict) else None
+        if got:
+            cols = [math.sqrt(float(f["weight"])) * np.asarray(f["taps"], float) for f in got]
+            n = max(c.size for c in cols)
+            return np.column_stack([np.pad(c, (0, n - c.size)) for c in cols])
+    return None
+
+
+def axis_residual(profile, axis: str, *, method: str = "pidd") -> np.ndarray | None:
+    """:func:`learned_residual` of one axis as the twin and the optimizer use it (None for
+    ``dd``, which starts from nothing)."""
+    return None if method == "dd" else learned_residual(profile.twin.priors.get(axis))
+
+
 def learned_variance_terms(profile, axis: str, *, method: str = "pidd") -> tuple[float, float]:
     """(k_v², ρ²) of one axis as the optimizer and an open-loop prediction add them (variance
     k_v²·v² + ρ²·d², :func:`learned_speed_noise_s`, :func:`learned_deviation_noise`); zeros
@@ -382,4 +413,5 @@ def axis_twin(profile, axis: str, *, method: str = "pidd") -> AxisTwin:
     kv2, rho2 = learned_variance_terms(profile, axis, method=method)
     return AxisTwin(ir=twin_impulse(profile, axis, method=method), n2=tw.n2, n3=tw.n3,
                     sigma2=axis_noise_mm(profile, axis, method=method) ** 2, mu=mu, cov=cov,
-                    use_feature_var=method != "dd", kv2=kv2, rho2=rho2)
+                    use_feature_var=method != "dd", kv2=kv2, rho2=rho2,
+                    resid=axis_residual(profile, axis, method=method))

@@ -216,35 +216,26 @@ def test_pidd_keeps_the_tolerance_on_a_servo_with_a_slow_integral_pole(tmp_path)
 
 
 @pytest.mark.shared_data
-def test_a_foreign_servos_learned_twin_keeps_the_rms_rule_at_99_percent(tmp_path):
+def test_a_foreign_servos_learned_twin_keeps_a_stringency_of_99_percent(tmp_path):
     """A PID servo simulated apart from the twin (tests/foreign, seed 16: 3 FRFs from 1.5 Hz,
-    2.5 % noise), η 0.99, the second print planned with the first one learned. Learning
-    clipped its x step to half (the trust region) and its open-loop error on that print stayed
-    57 µm, but the level learn kept was 6 µm: the rest was put down to a plant draw 7σ out in
-    the narrowed spread, which the interval does not carry. The next print, twice as fast,
-    erred 85 µm on x against σ 8 µm and ran 98.90 % within (RMS γ 0.57 µm). Now the spread
-    explains at most its 99 % draw and the rest grows with the predicted dynamic error (ρ):
-    100 % within, 24.2 s (21.1 s before; conservative 43.5 s). And learn no longer keeps a
-    step that makes that print's open-loop prediction worse (the clipped step took x from 54
-    to 57 µm): halved to none (x keeps its prior weights and draw, narrowed, and learns its
-    levels; y's step stays whole, 32 → 3.8 µm), 100 % within in 21.3 s.
+    2.5 % noise), η 0.99, the second print planned with the first one learned.
 
-    Which way x goes depends on the last bits of the arithmetic (the BLAS kernels, numpy's
-    SIMD loops): with OpenBLAS's Haswell kernels the first print is as above and x is refused;
-    on one AMD EPYC (2026-11-27) the first plan differs slightly, x errs 52.4 µm, its whole
-    step takes it to 10.3 µm, and the next print runs 99.33 % within in 15.7 s (RMS γ 0.28
-    µm); on another, without AVX-512 (2026-11-28), x errs 49.6 µm, its whole step (13.9 σ)
-    takes it to 6.0 µm, and the next print, 14.35 s, runs 96.91 % within (RMS γ 0.91 µm
-    against 1.0): learned from a print three times slower, the twin errs 17.1 µm on x there
-    against a median σ of 7.8 µm, 87 % inside its 99 % interval (README, *On machines we did
-    not simulate*: open). What holds every way is the paper's rule, RMS γ ≤ (1 − η)·E_max,
-    at least 96.5 % within, and learn keeping no step that worsens its own print's
-    prediction; the refusal itself is
-    tests/closedloop/test_learn.py::test_a_step_that_worsens_its_own_logs_open_loop_prediction_is_refused."""
+    Which way learn's x step goes depends on the last bits of the arithmetic (the BLAS
+    kernels, numpy's SIMD loops). With OpenBLAS's Haswell kernels the step, clipped to half
+    by the trust region, left x 57 µm off its own print, and learn now keeps no step that
+    makes that print's open-loop prediction worse (tests/closedloop/test_learn.py). On an AMD
+    EPYC without AVX-512 (2026-11-28) x errs 49.6 µm on the first print and its whole step
+    (13.9 σ) takes it to 6.0 µm; the next print, three times faster, erred 17.1 µm on x
+    against a median σ of 5.9 µm and ran 96.91 % within (RMS γ 0.91 µm), because learn
+    measured what the twin missed as a level and terms growing with the speed and the
+    predicted error sample by sample, while it was slow dynamics, a filter of the command.
+    Learn's residual filter (twin.residual) carries it as variance that grows with the motion:
+    17.02 s (14.35 before; the plant-tuned conservative plan 43.5 s), 99.44 % within, RMS γ
+    0.10 µm; the error over the twin's σ has RMS 1.17 / 1.19 on x / y (2.25 / 1.74)."""
     recs = []
     sch, m = _foreign_pidd(16, tmp_path, eta=0.99, learn_first=True, records=recs)
     assert m.rms_gamma_mm <= 0.01 * 0.1
-    assert m.within_fraction >= 0.965
+    assert m.within_fraction >= 0.99
     for r in recs:
         assert r["prediction_rms_mm"]["after"] <= r["prediction_rms_mm"]["before"], r
 

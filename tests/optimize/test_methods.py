@@ -55,16 +55,26 @@ def test_twin_predictor_equals_the_twin_run_window_by_window(ender):
 
 def test_predict_offline_gives_the_optimizers_interval_once_learned(ender):
     """A profile ``learn`` wrote (a level σ_r, a part k_v growing with the commanded speed, a
-    part ρ in proportion to the predicted dynamic error): ``predict`` without measurements
-    (twin.model.AxisTwin.run, what `gcode-feedopt predict` shows for a plan) has the
-    optimizer's variance, σ_r² + k_v²v² + ρ²d² on top of the known uncertainty — not σ_r
-    alone (before: narrower than what the optimizer planned with)."""
+    part ρ in proportion to the predicted dynamic error, two filters g_j of the command
+    weighted 3/4 and 1/4): ``predict`` without measurements (twin.model.AxisTwin.run, what
+    `gcode-feedopt predict` shows for a plan) has the optimizer's variance, window by window
+    and over the whole trajectory at once (predict_trajectory), σ_r² + k_v²v² + ρ²d²
+    + Σ_j weight_j·(g_j * w)² on top of the known uncertainty — not σ_r alone (before:
+    narrower than what the optimizer planned with)."""
     import dataclasses
 
+    from gcode_feedopt.optimize.predictors import predict_trajectory
     from gcode_feedopt.profile.schema import Prior
     from gcode_feedopt.twin.model import axis_prior
 
-    rec = {"noise_level_mm": 0.004, "noise_per_speed_s": 0.002, "noise_per_deviation": 0.3}
+    n_taps = axis_twin(ender, "x").ir.mean.size
+    lag = np.exp(-np.arange(n_taps) * ender.ts_s / 0.05)
+    g1 = 1e-4 * (lag - lag.mean())
+    g2 = np.zeros(n_taps)
+    g2[[0, 7]] = [2e-3, -2e-3]
+    rec = {"noise_level_mm": 0.004, "noise_per_speed_s": 0.002, "noise_per_deviation": 0.3,
+           "residual_filters": [{"weight": 0.75, "taps": list(g1)},
+                                {"weight": 0.25, "taps": list(g2)}]}
     priors = {ax: Prior(*axis_prior(ender, ax, method="pidd"), learned_from=(rec,))
               for ax in ("x", "y")}
     learned = dataclasses.replace(ender, twin=dataclasses.replace(ender.twin, priors=priors))
@@ -72,16 +82,23 @@ def test_predict_offline_gives_the_optimizers_interval_once_learned(ender):
     pr = make_twin_predictor(learned, "pidd", learn=False)
     for k in range(0, cmd.shape[0], 30):
         pr.commit(k, cmd[k:k + 30])
+    whole_m, whole_s = predict_trajectory(make_twin_predictor(learned, "pidd", learn=False), cmd)
     for a, ax in enumerate("xy"):
         tw = axis_twin(learned, ax, method="pidd")
         mean, std = tw.run(cmd[:, a], None, learn=False)
         np.testing.assert_allclose(pr.pred_mean[a], mean, atol=1e-10)
         np.testing.assert_allclose(pr.pred_std[a], std, rtol=1e-9)
-        bare = dataclasses.replace(axis_twin(learned, ax, method="pidd"), kv2=0.0, rho2=0.0)
+        np.testing.assert_allclose(whole_m[a], mean, atol=1e-10)
+        np.testing.assert_allclose(whole_s[a], std, rtol=1e-9)
+        bare = dataclasses.replace(axis_twin(learned, ax, method="pidd"), kv2=0.0, rho2=0.0,
+                                   resid=None)
         _, std0 = bare.run(cmd[:, a], None, learn=False)
         v = np.diff(cmd[:, a], prepend=cmd[0, a]) / ender.ts_s
+        w = cmd[:, a] - cmd[0, a]
+        f1, f2 = (np.convolve(w, g)[:w.size] for g in (g1, g2))
         np.testing.assert_allclose(std ** 2, std0 ** 2 + 0.002 ** 2 * v ** 2
-                                   + 0.3 ** 2 * (mean - cmd[:, a]) ** 2, rtol=1e-9)
+                                   + 0.3 ** 2 * (mean - cmd[:, a]) ** 2
+                                   + 0.75 * f1 ** 2 + 0.25 * f2 ** 2, rtol=1e-9)
         assert np.median(std / std0) > 1.5
 
 
