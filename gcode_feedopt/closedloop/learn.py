@@ -233,7 +233,8 @@ def learn_axis(profile, axis: str, x_cmd, x_meas, *, source: str = "", sha: str 
            "noise_per_deviation_log": round(rho_log, 6), "noise_per_deviation": round(rho, 6),
            "residual_filter_log_rms_mm": round(g_rms, 7),
            "residual_filters": [{"weight": round(f["weight"], 9),
-                                 "taps": [float(f"{v:.7g}") for v in f["taps"]]}
+                                 "taps": ([float(f"{v:.7g}") for v in f["taps"]]
+                                          if np.any(np.asarray(f["taps"]) != 0.0) else [])}
                                 for f in filters]}
     if draw is not None:
         rec["plant_draw"] = draw

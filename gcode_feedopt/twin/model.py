@@ -340,6 +340,9 @@ def learned_residual(prior) -> np.ndarray | None:
         got = rec.get("residual_filters") if isinstance(rec, dict) else None
         if got:
             cols = [math.sqrt(float(f["weight"])) * np.asarray(f["taps"], float) for f in got]
+            cols = [c for c in cols if c.size and np.any(c != 0.0)]
+            if not cols:
+                return None
             n = max(c.size for c in cols)
             return np.column_stack([np.pad(c, (0, n - c.size)) for c in cols])
     return None
