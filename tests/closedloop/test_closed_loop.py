@@ -241,8 +241,8 @@ def test_the_unexplained_level_carries_what_is_linear_in_the_motion_sample_by_sa
     speed, or 20 ms × the commanded speed seen through a 50 ms first-order lag (a servo's slow
     pole: neither v nor d has that shape) are each a filter of the command, and the interval
     carries each sample by sample (RMS of the difference ≤ 5 % of the residual's; measured
-    3.8 %, 0.03 %, 0.001 %), not as a level; a 10 µm fan is not one: a level of 10/√2 µm
-    (measured −2.7 %)."""
+    0.33 %, 0.011 %, 0.0004 %), not as a level; a 10 µm fan is not one: no filter is kept
+    (twin.residual.MIN_EXPLAINED) and it is a level of 10/√2 µm (measured −0.02 %)."""
     from scipy.signal import lfilter
 
     _, bare, x, mean = _bare_twin_and_command(tmp_path)
@@ -259,8 +259,8 @@ def test_the_unexplained_level_carries_what_is_linear_in_the_motion_sample_by_sa
         assert terms[0] <= 0.05 * rms(r)
     fan = 0.01 * np.sin(2 * np.pi * 31.0 * t)
     terms = L.unexplained_level(bare, x, mean + fan)
-    assert terms[0] == pytest.approx(0.01 / np.sqrt(2), rel=0.05)
-    assert rms(_carried(bare, x, mean, terms)) == pytest.approx(rms(fan), rel=0.03)
+    assert not np.any(terms[3])
+    assert terms[0] == pytest.approx(0.01 / np.sqrt(2), rel=0.01)
 
 
 def test_a_residual_beyond_the_spread_the_twin_carries_is_counted(tmp_path):

@@ -112,10 +112,9 @@ def test_predict_on_the_command_line_shapes_what_the_profile_states(shaped, tmp_
 
 def test_learn_reads_a_shaped_print_through_the_stated_shaper(shaped):
     """`learn` on a clean print: stated, the twin's open-loop error on the log is 2.2 / 2.5 µm
-    and what it learns as unexplained about the sensor's (level and residual filter together
-    1.8 / 1.9 µm); unstated, the error is 24 / 48 µm and what the missing shaper leaves — a
-    filter of the command — is carried as one (22 / 42 µm RMS on the log; before the filter,
-    as a level, 22 / 7.0 µm)."""
+    and what it learns as unexplained the sensor's (1.8 / 1.9 µm); unstated, the error is
+    24 / 48 µm and what the missing shaper leaves is learned as noise (22 / 7.4 µm). (Level
+    and residual filter together; no filter is kept on this log, twin.residual.)"""
     from gcode_feedopt.closedloop.learn import learn_logs
     out, _, stated, bare = shaped
     log = _log(out, stated, "log_01.csv")
