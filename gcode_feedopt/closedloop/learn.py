@@ -55,7 +55,7 @@ from ..twin.features import factor_series
 from ..twin.residual import filter_series, fit_filter
 from ..twin.frf import ImpulseResponse
 from ..twin.model import (NOISE_FLOOR_MIN_MM, axis_twin, learned_deviation_noise, learned_draw,
-                          learned_noise_mm, learned_speed_noise_s)
+                          learned_filters, learned_noise_mm, learned_speed_noise_s)
 from ..twin.physics import axis_impulse, log_machine_command
 
 MAX_PRED_CHANGE_MM = 0.05
@@ -248,14 +248,9 @@ MAX_FILTERS = 4
 def _averaged_filters(prior, g_new):
     """The residual filters after one more log, averaged in variance as the levels are:
     the earlier ones at half their weight, the new one at one half; at most ``MAX_FILTERS``."""
-    old = []
-    for rec in reversed(tuple(prior.learned_from)):
-        got = rec.get("residual_filters") if isinstance(rec, dict) else None
-        if got:
-            old = [{"weight": 0.5 * float(f["weight"]), "taps": np.asarray(f["taps"], float)}
-                   for f in got]
-            break
-    out = (old + [{"weight": 0.5 if old else 1.0, "taps": np.asarray(g_new, float)}])
+    old = [{"weight": 0.5 * float(f["weight"]), "taps": np.asarray(f["taps"], float)}
+           for f in learned_filters(prior)]
+    out = old + [{"weight": 0.5 if old else 1.0, "taps": np.asarray(g_new, float)}]
     out = out[-MAX_FILTERS:]
     total = sum(f["weight"] for f in out)
     return [{"weight": f["weight"] / total, "taps": f["taps"]} for f in out]

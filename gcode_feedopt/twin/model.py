@@ -329,23 +329,29 @@ def learned_deviation_noise(prior) -> float:
     return _learned(prior, "noise_per_deviation") or 0.0
 
 
-def learned_residual(prior) -> np.ndarray | None:
-    """(n_taps, k): the filters of the command whose outputs ``learn`` found the twin to miss
-    on this axis's logs (twin.residual), each scaled by the square root of its weight in the
-    average over logs; None when nothing was learned. Kept in the last record of
-    ``Prior.learned_from`` that has them (``residual_filters``: weight and taps each)."""
+def learned_filters(prior) -> list:
+    """The residual filters (``[{"weight", "taps"}, ...]``, twin.residual) of the last record of
+    ``Prior.learned_from`` that has any, as written; [] when none has."""
     if prior is None:
-        return None
+        return []
     for rec in reversed(tuple(prior.learned_from)):
         got = rec.get("residual_filters") if isinstance(rec, dict) else None
         if got:
-            cols = [math.sqrt(float(f["weight"])) * np.asarray(f["taps"], float) for f in got]
-            cols = [c for c in cols if c.size and np.any(c != 0.0)]
-            if not cols:
-                return None
-            n = max(c.size for c in cols)
-            return np.column_stack([np.pad(c, (0, n - c.size)) for c in cols])
-    return None
+            return list(got)
+    return []
+
+
+def learned_residual(prior) -> np.ndarray | None:
+    """(n_taps, k): the filters of the command whose outputs ``learn`` found the twin to miss
+    on this axis's logs (twin.residual), each scaled by the square root of its weight in the
+    average over logs; None when nothing was learned (:func:`learned_filters`)."""
+    cols = [math.sqrt(float(f["weight"])) * np.asarray(f["taps"], float)
+            for f in learned_filters(prior)]
+    cols = [c for c in cols if c.size and np.any(c != 0.0)]
+    if not cols:
+        return None
+    n = max(c.size for c in cols)
+    return np.column_stack([np.pad(c, (0, n - c.size)) for c in cols])
 
 
 def axis_residual(profile, axis: str, *, method: str = "pidd") -> np.ndarray | None:
