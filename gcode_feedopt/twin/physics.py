@@ -59,7 +59,8 @@ def axis_modal(profile, axis: str, *, warn: bool = True) -> AxisModal:
                            "(axes.{axis}.frf) or build the profile with `profile build`")
     frf = ax.frf
     dc = dc_gain_of(profile)
-    k = _key(frf.freq_hz, frf.response, "modal", dc, profile.ts_s, ax.effects)
+    n_taps = profile.twin.n_taps
+    k = _key(frf.freq_hz, frf.response, "modal", dc, profile.ts_s, n_taps, ax.effects)
     got = _CACHE.get(k)
     if got is None:
         try:
@@ -68,11 +69,35 @@ def axis_modal(profile, axis: str, *, warn: bool = True) -> AxisModal:
         except ValueError as exc:
             raise ProfileError(f"profile {profile.name}, axis {axis}: {exc}") from None
         got = apply_effects(got, ax.effects, profile.ts_s)
+        got = dataclasses.replace(got, warnings=got.warnings + _memory_warnings(got, profile.ts_s,
+                                                                                n_taps))
         _CACHE[k] = got
         if warn:
             for w in got.warnings:
                 warnings.warn(f"profile {profile.name}, axis {axis}: {w}", ModelWarning, stacklevel=2)
     return got
+
+
+#: a mode that still rings at this fraction of its amplitude after the twin's memory is named
+#: (``_memory_warnings``): the impulse response keeps the axis's DC gain and lag exactly
+#: (ModalModel.impulse) but not the ringing it cuts off
+TAIL_WARN = 0.05
+
+
+def _memory_warnings(fits: AxisModal, ts_s: float, n_taps: int) -> tuple:
+    """One line if a member's least damped mode outlasts the twin's memory (n_taps·Ts)."""
+    worst, label, model = max(((m.tail_envelope(ts_s, n_taps), lab, m)
+                               for lab, m in zip(fits.labels, fits.models)),
+                              key=lambda p: p[0], default=(0.0, "", None))
+    if worst <= TAIL_WARN:
+        return ()
+    z, f = np.asarray(model.damping), np.asarray(model.freq_hz)
+    i = int(np.argmin(np.where(z < 1.0, z * f, np.inf)))
+    need = int(math.ceil(math.log(100.0) / (2 * math.pi * z[i] * f[i] * ts_s)))
+    return (f"{label}: a mode at {f[i]:.1f} Hz (ζ {z[i]:.3f}) still rings at "
+            f"{100 * worst:.0f} % of its amplitude after the twin's memory of {n_taps} samples "
+            f"({n_taps * ts_s:g} s); the twin misses that ringing: set twin.n_taps to at least "
+            f"{need} (its ringing down to 1 %)",)
 
 
 def axis_impulse(profile, axis: str) -> _frf.ImpulseResponse:

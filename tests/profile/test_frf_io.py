@@ -136,3 +136,46 @@ def test_profile_build_on_mixed_grids_matches_the_one_grid_build(tmp_path):
         ta, tb = axis_twin(same, ax), axis_twin(mixed, ax)
         assert np.max(np.abs(np.cumsum(ta.ir.mean) - np.cumsum(tb.ir.mean))) < 1e-3
         assert abs(np.sqrt(tb.ir.var.sum() / ta.ir.var.sum()) - 1) < 0.05
+
+
+def test_a_mode_that_outlasts_the_twins_memory_is_named_with_the_memory_it_needs(tmp_path):
+    """A 20 Hz mode at ζ 0.01 still rings at 28 % of its amplitude after the 500-sample (1 s)
+    memory: the impulse response keeps the axis's lag (twin.modal) but not that ringing, so
+    the build says which mode, by how much, and what twin.n_taps would hold it to 1 %; with
+    that memory the line is gone. A well-damped machine (ζ 0.06) gets no such line."""
+    import dataclasses
+
+    from gcode_feedopt.twin.modal import ModalModel
+
+    f = np.arange(1.0, 200.0, 0.5)
+    rng = np.random.default_rng(2)
+
+    def build(zeta, n_taps=None):
+        files = {}
+        for ax, z in (("x", zeta), ("y", 0.06)):
+            files[ax] = []
+            for k in range(3):
+                m = ModalModel(freq_hz=np.array([20.0 * (1 + 0.003 * rng.standard_normal())]),
+                               damping=np.array([z]), b1_rad_s=np.zeros(1), b0=np.ones(1))
+                write_frf_csv(tmp_path / f"{ax}_{zeta}_{k}.csv", f, m.response(f))
+                files[ax].append(tmp_path / f"{ax}_{zeta}_{k}.csv")
+        base = load_profile("ender3pro")
+        if n_taps:
+            base = dataclasses.replace(base, twin=dataclasses.replace(base.twin, n_taps=n_taps))
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            prof, _ = build_from_frfs(base, files, name=f"ring{zeta}-{n_taps}")
+            for ax in "xy":
+                axis_modal(prof, ax)
+        return [str(w.message) for w in caught if "still rings" in str(w.message)]
+
+    said = build(0.01)
+    import re
+    got = re.search(r"axis x: x_0\.01_\d\.csv: a mode at 20\.0 Hz \(ζ 0\.010\) still rings at "
+                    r"(\d+) % of its amplitude after the twin's memory of 500 samples \(1 s\)",
+                    said[0]) if len(said) == 1 else None
+    assert got and 27 <= int(got.group(1)) <= 30, said  # e^(−ζω·1 s) = 28 % at 20.0 Hz
+    need = int(said[0].split("set twin.n_taps to at least ")[1].split()[0])
+    assert 1800 <= need <= 1900  # ln(100) / (ζω·Ts) = 1832
+    assert build(0.01, n_taps=need) == []
+    assert build(0.06) == []
