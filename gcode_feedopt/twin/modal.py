@@ -233,10 +233,11 @@ class ModalModel:
 
     def tail_envelope(self, ts_s: float, n_taps: int) -> float:
         """How much of its decay the slowest mode has left at the end of the twin's memory:
-        exp(−ζω·n_taps·Ts) of the least damped oscillatory mode (0 without one)."""
+        exp(−ζω·n_taps·Ts) of the least damped oscillatory mode that responds (a silenced one,
+        ``_silence_unresolved``, has no residue); 0 without one."""
         z = np.asarray(self.damping, float)
         w = 2 * np.pi * np.asarray(self.freq_hz, float)
-        osc = z < 1.0
+        osc = (z < 1.0) & ((np.asarray(self.b0) != 0) | (np.asarray(self.b1_rad_s) != 0))
         if not np.any(osc):
             return 0.0
         return float(np.exp(-np.min(z[osc] * w[osc]) * n_taps * ts_s))

@@ -85,14 +85,20 @@ TAIL_WARN = 0.05
 
 
 def _memory_warnings(fits: AxisModal, ts_s: float, n_taps: int) -> tuple:
-    """One line if a member's least damped mode outlasts the twin's memory (n_taps·Ts)."""
-    worst, label, model = max(((m.tail_envelope(ts_s, n_taps), lab, m)
-                               for lab, m in zip(fits.labels, fits.models)),
-                              key=lambda p: p[0], default=(0.0, "", None))
+    """One line if the machine's least damped mode outlasts the twin's memory (n_taps·Ts), as
+    the median member has it: one member whose fit put a mode at the damping floor (a line
+    narrower than its grid step, tests/foreign seed 0's y_3: 61 % left after 1 s where the
+    other seven leave ≤ 2 %) says nothing about how long the machine rings."""
+    if not fits.fits:
+        return ()
+    ranked = sorted(((m.tail_envelope(ts_s, n_taps), lab, m)
+                     for lab, m in zip(fits.labels, fits.models)), key=lambda p: p[0])
+    worst, label, model = ranked[len(ranked) // 2]
     if worst <= TAIL_WARN:
         return ()
     z, f = np.asarray(model.damping), np.asarray(model.freq_hz)
-    i = int(np.argmin(np.where(z < 1.0, z * f, np.inf)))
+    live = (z < 1.0) & ((np.asarray(model.b0) != 0) | (np.asarray(model.b1_rad_s) != 0))
+    i = int(np.argmin(np.where(live, z * f, np.inf)))
     need = int(math.ceil(math.log(100.0) / (2 * math.pi * z[i] * f[i] * ts_s)))
     return (f"{label}: a mode at {f[i]:.1f} Hz (ζ {z[i]:.3f}) still rings at "
             f"{100 * worst:.0f} % of its amplitude after the twin's memory of {n_taps} samples "
