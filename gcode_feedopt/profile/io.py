@@ -466,6 +466,21 @@ def check_profile_output(path, option: str = "-o", inputs=()):
     return target
 
 
+class _Dumper(yaml.SafeDumper):
+    """YAML as ``yaml.safe_dump`` writes it, but a list of numbers on one (wrapped) line: a
+    learned prior's weights, its covariance rows and its residual filters took one line per
+    number (a 500-tap filter 500 lines, a 42 × 42 covariance 1,806)."""
+
+
+def _number_list(dumper, data):
+    flat = bool(data) and all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                              for v in data)
+    return dumper.represent_sequence("tag:yaml.org,2002:seq", data, flow_style=flat)
+
+
+_Dumper.add_representer(list, _number_list)
+
+
 def save_profile(profile: MachineProfile, path, option: str = "-o") -> pathlib.Path:
     """Write ``path`` (YAML) and the FRF CSVs in a folder named after it, beside it; every
     file through gcode_feedopt.outputs (temp + replace). The folder ``path`` is in must
@@ -485,5 +500,5 @@ def save_profile(profile: MachineProfile, path, option: str = "-o") -> pathlib.P
             rel.append(f"{folder.name}/{fname}")
         frf_paths[a] = rel
     d = profile_to_dict(profile, frf_paths)
-    write_text(target, yaml.safe_dump(d, sort_keys=False, width=100))
+    write_text(target, yaml.dump(d, Dumper=_Dumper, sort_keys=False, width=100))
     return path

@@ -30,6 +30,39 @@ def test_save_load_round_trip_is_exact(tmp_path, name):
     assert (tmp_path / "a" / f"{name}.yaml").read_text() == (tmp_path / "b" / f"{name}.yaml").read_text()
 
 
+def test_a_learned_profile_round_trips_with_its_numbers_on_few_lines(tmp_path):
+    """A learned prior (weights, covariance, a record with a 500-tap residual filter and a
+    plant draw) is written with each list of numbers on one wrapped line — it took one line
+    per number — and read back to the bit."""
+    import dataclasses
+
+    from gcode_feedopt.profile.schema import Prior
+    from gcode_feedopt.twin.model import axis_prior, learned_filters
+
+    p = load_profile("ender3pro")
+    rng = np.random.default_rng(4)
+    taps = [float(f"{v:.7g}") for v in 1e-4 * rng.standard_normal(500)]
+    rec = {"log": "a.csv", "noise_level_mm": 0.004,
+           "residual_filters": [{"weight": 1.0, "taps": taps}],
+           "plant_draw": {"z": [0.1, -0.2], "sqrt_cov": [[1.0, 0.0], [0.0, 0.5]]}}
+    priors = {ax: Prior(*axis_prior(p, ax, method="pidd"), learned_from=(rec,)) for ax in "xy"}
+    p = dataclasses.replace(p, twin=dataclasses.replace(p.twin, priors=priors))
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    q = load_profile(save_profile(p, tmp_path / "a" / "learned.yaml"))
+    for ax in "xy":
+        np.testing.assert_array_equal(q.twin.priors[ax].mu, p.twin.priors[ax].mu)
+        np.testing.assert_array_equal(q.twin.priors[ax].cov, p.twin.priors[ax].cov)
+        assert learned_filters(q.twin.priors[ax])[0]["taps"] == taps
+        assert q.twin.priors[ax].learned_from[-1]["plant_draw"] == rec["plant_draw"]
+    text = (tmp_path / "a" / "learned.yaml").read_text()
+    d = p.twin.priors["x"].cov.shape[0]
+    # per axis: the filter's 500 numbers on ≤ 70 lines, each covariance row on ≤ 15
+    assert len(text.splitlines()) < 2 * (70 + d * 15) + 600, len(text.splitlines())
+    save_profile(q, tmp_path / "b" / "learned.yaml")
+    assert (tmp_path / "b" / "learned.yaml").read_text() == text
+
+
 def test_unknown_key_message_says_did_you_mean_and_file(tmp_path):
     d = yaml.safe_load(open(load_profile("nomad3").source_path))
     d["limits"]["tolerence_mm"] = d["limits"].pop("tolerance_mm")
