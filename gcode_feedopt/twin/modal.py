@@ -231,16 +231,23 @@ class ModalModel:
                        - np.asarray(self.b1_rad_s, float) / (w * w)) if w.size else 0.0
         return float(self.dc_gain * (self.lag_s + self.delay_s) + modes)
 
-    def tail_envelope(self, ts_s: float, n_taps: int) -> float:
-        """How much of its decay the slowest mode has left at the end of the twin's memory:
-        exp(−ζω·n_taps·Ts) of the least damped oscillatory mode that responds (a silenced one,
-        ``_silence_unresolved``, has no residue); 0 without one."""
+    @property
+    def slowest_ringing(self) -> int | None:
+        """Index of the oscillatory mode (ζ < 1) that responds (a silenced one,
+        ``_silence_unresolved``, has no residue) with the slowest decay ζω; None without one."""
         z = np.asarray(self.damping, float)
-        w = 2 * np.pi * np.asarray(self.freq_hz, float)
         osc = (z < 1.0) & ((np.asarray(self.b0) != 0) | (np.asarray(self.b1_rad_s) != 0))
         if not np.any(osc):
+            return None
+        return int(np.argmin(np.where(osc, z * np.asarray(self.freq_hz, float), np.inf)))
+
+    def tail_envelope(self, ts_s: float, n_taps: int) -> float:
+        """How much of its decay the slowest ringing mode has left at the end of the twin's
+        memory: exp(−ζω·n_taps·Ts); 0 without one."""
+        i = self.slowest_ringing
+        if i is None:
             return 0.0
-        return float(np.exp(-np.min(z[osc] * w[osc]) * n_taps * ts_s))
+        return float(np.exp(-self.damping[i] * 2 * np.pi * self.freq_hz[i] * n_taps * ts_s))
 
     def triangle_response(self, ts_s: float, t_s: np.ndarray) -> np.ndarray:
         """Response at times ``t_s`` (ascending) to a unit triangle pulse over (−Ts, Ts): the

@@ -296,15 +296,22 @@ def axis_prior(profile, axis: str, *, method: str = "pidd") -> tuple[np.ndarray,
     return mu, shift_invariant_cov(cov, tw.n2)
 
 
-def _learned(prior, key: str):
-    """The value ``key`` of the last record of ``Prior.learned_from`` that has one (the
-    profile's YAML carries the records as they are), or None."""
+def _last_recorded(prior, key: str, present=lambda v: v is not None):
+    """The value ``key`` of the last record of ``Prior.learned_from`` whose value is
+    ``present`` (the profile's YAML carries the records as they are), or None."""
     if prior is None:
         return None
     for rec in reversed(tuple(prior.learned_from)):
-        if isinstance(rec, dict) and rec.get(key) is not None:
-            return float(rec[key])
+        got = rec.get(key) if isinstance(rec, dict) else None
+        if present(got):
+            return got
     return None
+
+
+def _learned(prior, key: str):
+    """:func:`_last_recorded` of a number, as float, or None."""
+    got = _last_recorded(prior, key)
+    return None if got is None else float(got)
 
 
 def learned_noise_mm(prior) -> float | None:
@@ -332,13 +339,7 @@ def learned_deviation_noise(prior) -> float:
 def learned_filters(prior) -> list:
     """The residual filters (``[{"weight", "taps"}, ...]``, twin.residual) of the last record of
     ``Prior.learned_from`` that has any, as written; [] when none has."""
-    if prior is None:
-        return []
-    for rec in reversed(tuple(prior.learned_from)):
-        got = rec.get("residual_filters") if isinstance(rec, dict) else None
-        if got:
-            return list(got)
-    return []
+    return list(_last_recorded(prior, "residual_filters", present=bool) or [])
 
 
 def learned_residual(prior) -> np.ndarray | None:
@@ -383,17 +384,14 @@ def learned_draw(prior, r: int):
     axis's known uncertainty (h = E h + L z'); None when nothing was learned (or the physics
     changed its number of directions since). Kept in the last record of ``Prior.learned_from``
     that has one (``plant_draw``)."""
-    if prior is None:
+    got = _last_recorded(prior, "plant_draw")
+    if got is None:
         return None
-    for rec in reversed(tuple(prior.learned_from)):
-        got = rec.get("plant_draw") if isinstance(rec, dict) else None
-        if got is not None:
-            z = np.asarray(got["z"], float)
-            S = np.asarray(got["sqrt_cov"], float)
-            if z.shape != (r,) or S.shape != (r, r):
-                return None
-            return z, S
-    return None
+    z = np.asarray(got["z"], float)
+    S = np.asarray(got["sqrt_cov"], float)
+    if z.shape != (r,) or S.shape != (r, r):
+        return None
+    return z, S
 
 
 def twin_impulse(profile, axis: str, *, method: str = "pidd") -> ImpulseResponse:

@@ -93,15 +93,14 @@ def _memory_warnings(fits: AxisModal, ts_s: float, n_taps: int) -> tuple:
         return ()
     ranked = sorted(((m.tail_envelope(ts_s, n_taps), lab, m)
                      for lab, m in zip(fits.labels, fits.models)), key=lambda p: p[0])
-    worst, label, model = ranked[len(ranked) // 2]
-    if worst <= TAIL_WARN:
+    left, label, model = ranked[len(ranked) // 2]
+    if left <= TAIL_WARN:
         return ()
-    z, f = np.asarray(model.damping), np.asarray(model.freq_hz)
-    live = (z < 1.0) & ((np.asarray(model.b0) != 0) | (np.asarray(model.b1_rad_s) != 0))
-    i = int(np.argmin(np.where(live, z * f, np.inf)))
-    need = int(math.ceil(math.log(100.0) / (2 * math.pi * z[i] * f[i] * ts_s)))
-    return (f"{label}: a mode at {f[i]:.1f} Hz (ζ {z[i]:.3f}) still rings at "
-            f"{100 * worst:.0f} % of its amplitude after the twin's memory of {n_taps} samples "
+    i = model.slowest_ringing
+    z, f = float(model.damping[i]), float(model.freq_hz[i])
+    need = int(math.ceil(math.log(100.0) / (2 * math.pi * z * f * ts_s)))
+    return (f"{label}: a mode at {f:.1f} Hz (ζ {z:.3f}) still rings at "
+            f"{100 * left:.0f} % of its amplitude after the twin's memory of {n_taps} samples "
             f"({n_taps * ts_s:g} s); the twin misses that ringing: set twin.n_taps to at least "
             f"{need} (its ringing down to 1 %)",)
 
