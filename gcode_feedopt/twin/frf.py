@@ -156,9 +156,7 @@ def impulse_response(*args, method: str = "minmax") -> ImpulseResponse:
     if method == "ensemble":
         return ensemble_impulse_response(freq_hz, response, ts_s, n_taps)
     st = coefficient_stats(freq_hz, response, ts_s, method)
-    if n_taps > st.n_dft:
-        raise ValueError(f"n_taps {n_taps} exceeds the estimable length N_h = {st.n_dft} "
-                         "(1/(Ts·Δf)); use a finer FRF grid or fewer taps")
+    _check_length(n_taps, st.n_dft)
     A, B = _basis(st.n_dft, n_taps)
     mean = A @ st.mu.real + B @ st.mu.imag
     keep_a = st.sigma_re > RANK_DROP * max(st.sigma_re.max(), 1e-300)
@@ -182,9 +180,7 @@ def ensemble_impulse_response(freq_hz, response, ts_s: float, n_taps: int) -> Im
     measurements differ, with the sample variance along them, and costs N_H − 1 columns
     instead of ~240 (``coef_variance: ensemble`` in a profile)."""
     n, bins = dft_grid(freq_hz, ts_s)
-    if n_taps > n:
-        raise ValueError(f"n_taps {n_taps} exceeds the estimable length N_h = {n} "
-                         "(1/(Ts·Δf)); use a finer FRF grid or fewer taps")
+    _check_length(n_taps, n)
     H = _on_bins(np.asarray(freq_hz, float), np.atleast_2d(response), bins)
     H = H.copy()
     H[:, 0] = H[:, 0].real
@@ -245,6 +241,7 @@ def draw_impulse_responses(*args, size: int | None = None, method: str = "minmax
         z = rng.standard_normal((size, ir.factor.shape[1]))
         return ir.mean[None, :] + z @ ir.factor.T
     st = coefficient_stats(freq_hz, response, ts_s, method)
+    _check_length(n_taps, st.n_dft)
     spec = draw_coefficients(st, rng, size)
     h = np.fft.irfft(spec, n=st.n_dft, axis=1)
     return _fold(h, n_taps)
@@ -253,9 +250,18 @@ def draw_impulse_responses(*args, size: int | None = None, method: str = "minmax
 def member_impulses(freq_hz, response, ts_s, n_taps) -> np.ndarray:
     """(N_H, n_taps) impulse response of each measured FRF (same folding as the Gaussian)."""
     n, bins = dft_grid(freq_hz, ts_s)
+    _check_length(n_taps, n)
     H = _on_bins(np.asarray(freq_hz, float), response, bins)
     A, B = _basis(n, n_taps)
     return H.real @ A.T + H.imag @ B.T
+
+
+def _check_length(n_taps: int, n_dft: int) -> None:
+    """The bins determine N = 1/(Ts·Δf) taps; beyond them the inverse DFT repeats itself (a
+    2 Hz grid at Ts 2 ms: 250 taps, and a 500-tap response would trail its command by 0.5 s)."""
+    if n_taps > n_dft:
+        raise ValueError(f"n_taps {n_taps} exceeds the estimable length N_h = {n_dft} "
+                         "(1/(Ts·Δf)); use a finer FRF grid or fewer taps")
 
 
 def _fold(h: np.ndarray, n_taps: int) -> np.ndarray:

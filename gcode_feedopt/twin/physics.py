@@ -18,6 +18,7 @@ response moved to another mode frequency, the response to a force on the carriag
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 from dataclasses import dataclass
 from typing import Callable
@@ -121,7 +122,8 @@ def axis_impulse(profile, axis: str) -> _frf.ImpulseResponse:
             _CACHE[k] = got
         return got
     freq, resp = _bins(profile, axis)
-    return _frf.impulse_response(freq, resp, profile.ts_s, n_taps, method=tw.coef_variance)
+    with _named_axis(profile, axis):
+        return _frf.impulse_response(freq, resp, profile.ts_s, n_taps, method=tw.coef_variance)
 
 
 #: the machine has stopped ringing once its impulse response's envelope is below this fraction
@@ -245,6 +247,17 @@ def _bins(profile, axis: str):
     return freq, resp
 
 
+@contextlib.contextmanager
+def _named_axis(profile, axis: str):
+    """A raw-bin constructor's ValueError (a grid too coarse for twin.n_taps) as the
+    profile's error, naming the profile and the axis."""
+    try:
+        yield
+    except ValueError as exc:
+        raise ProfileError(f"profile {profile.name}, axis {axis} (twin.physics: bins): "
+                           f"{exc}") from None
+
+
 def _shift_rows(freq_hz, rows, ratio):
     """rows (N, F) complex -> H(f / ratio) per row (mode f0 -> ratio·f0), interpolated in
     magnitude and unwrapped phase (outside the grid: the edge value)."""
@@ -276,7 +289,8 @@ def member_impulses(profile, axis: str) -> np.ndarray:
     if tw.physics == "modal":
         return np.array([m.impulse(profile.ts_s, tw.n_taps) for m in axis_modal(profile, axis).models])
     freq, resp = _bins(profile, axis)
-    return _frf.member_impulses(freq, resp, profile.ts_s, tw.n_taps)
+    with _named_axis(profile, axis):
+        return _frf.member_impulses(freq, resp, profile.ts_s, tw.n_taps)
 
 
 def draw_impulses(profile, axis: str, rng: np.random.Generator, size: int = 1) -> np.ndarray:
@@ -287,8 +301,9 @@ def draw_impulses(profile, axis: str, rng: np.random.Generator, size: int = 1) -
         z = rng.standard_normal((size, ir.factor.shape[1]))
         return ir.mean[None, :] + z @ ir.factor.T
     freq, resp = _bins(profile, axis)
-    return _frf.draw_impulse_responses(freq, resp, profile.ts_s, tw.n_taps, rng, size,
-                                       method=tw.coef_variance)
+    with _named_axis(profile, axis):
+        return _frf.draw_impulse_responses(freq, resp, profile.ts_s, tw.n_taps, rng, size,
+                                           method=tw.coef_variance)
 
 
 def mean_model(profile, axis: str):

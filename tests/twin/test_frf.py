@@ -79,3 +79,21 @@ def test_builtin_profile_gives_physical_impulse_response():
     spec = draw_coefficients(coefficient_stats(prof.axes["y"].frf.freq_hz,
                                                prof.axes["y"].frf.response, TS), rng, 3)
     assert spec.shape[1] == 501
+
+
+def test_more_taps_than_the_grid_determines_are_refused_on_every_route():
+    """A 2 Hz grid at Ts 2 ms determines N = 250 taps; beyond them the inverse DFT repeats
+    itself, and a member's 500-tap response trailed its command by ~0.5 s (tests/foreign
+    seed 15 with `twin.physics: bins`). Every raw-bin constructor names the limit."""
+    from gcode_feedopt.twin.frf import member_impulses
+
+    f = np.arange(1.0, 150.0, 2.0)
+    resp = np.array([1.0 / (1 + 2j * np.pi * f * 0.002 + (1j * f / 40.0) ** 2)] * 3)
+    rng = np.random.default_rng(0)
+    for call in (lambda: member_impulses(f, resp, TS, 500),
+                 lambda: impulse_response(f, resp, TS, 500, method="ensemble"),
+                 lambda: impulse_response(f, resp, TS, 500),
+                 lambda: draw_impulse_responses(f, resp, TS, 500, rng, 2)):
+        with pytest.raises(ValueError, match="n_taps 500 exceeds the estimable length N_h = 250"):
+            call()
+    assert member_impulses(f, resp, TS, 250).shape == (3, 250)

@@ -178,3 +178,26 @@ def test_the_residual_filters_ridge_is_chosen_on_the_logs_second_half():
     got = filter_series(fit_filter(w, signal + noise, n)[:, None], w)[0]
     assert np.sqrt(np.mean(signal ** 2)) > 4 * 0.001
     assert np.sqrt(np.mean((got - signal) ** 2)) < 0.2 * 0.001
+
+
+def test_a_grid_too_coarse_for_the_raw_bins_is_the_profiles_error():
+    """`twin.physics: bins` on a 2 Hz grid at Ts 2 ms (250 taps determined, 500 asked): a
+    ProfileError naming the profile and the axis, not an internal error."""
+    import dataclasses
+
+    from gcode_feedopt.errors import ProfileError
+    from gcode_feedopt.profile import load_profile
+    from gcode_feedopt.profile.schema import FRFSet
+    from gcode_feedopt.twin.physics import axis_impulse, member_impulses, with_physics
+
+    prof = with_physics(load_profile("ender3pro"), "bins")
+    f = np.arange(1.0, 150.0, 2.0)
+    resp = np.array([1.0 / (1 + 2j * np.pi * f * 0.002 + (1j * f / 40.0) ** 2)] * 3)
+    ax = dataclasses.replace(prof.axes["x"], frf=FRFSet(freq_hz=f, response=resp,
+                                                        labels=("a", "b", "c")))
+    prof = dataclasses.replace(prof, axes={**prof.axes, "x": ax})
+    assert prof.twin.n_taps == 500 and prof.ts_s == 0.002
+    for call in (axis_impulse, member_impulses):
+        with pytest.raises(ProfileError, match=r"axis x \(twin.physics: bins\): n_taps 500 "
+                                               r"exceeds the estimable length N_h = 250"):
+            call(prof, "x")
