@@ -116,7 +116,8 @@ def axis_impulse(profile, axis: str) -> _frf.ImpulseResponse:
                  dc_gain_of(profile), profile.ts_s, n_taps, profile.axes[axis].effects)
         got = _CACHE.get(k)
         if got is None:
-            mean, L = ensemble_impulse(fits.models, profile.ts_s, n_taps)
+            mean, L = ensemble_impulse(fits.models, profile.ts_s, n_taps,
+                                       covs=[ft.cov for ft in fits.fits])
             got = _frf.ImpulseResponse(ts_s=profile.ts_s, mean=mean,
                                        var=np.einsum("ij,ij->i", L, L), factor=L)
             _CACHE[k] = got

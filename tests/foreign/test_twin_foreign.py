@@ -17,7 +17,7 @@ from gcode_feedopt.profile import load_profile
 from gcode_feedopt.profile.build import build_from_frfs
 from gcode_feedopt.twin.modal import ZETA_MIN
 from gcode_feedopt.twin.model import axis_twin
-from gcode_feedopt.twin.physics import axis_modal
+from gcode_feedopt.twin.physics import axis_impulse, axis_modal
 
 from .machines import BENCH_A, make_machine, write_dataset
 
@@ -109,6 +109,9 @@ SETS = {
     "servo58": (58, True),
     # belt + hotend whose y mode (32.1 Hz, ζ 0.023) still rings at 1 % after the 1 s memory
     "hotend305": (305, False),
+    # PID servo, 3 FRFs from 1 Hz in 1 Hz steps, 2.5 % noise: its members kept the set's lag
+    # (−0.47 … −0.80 ms where the machine has none) along a direction the data do not fix
+    "servo329": (329, False),
 }
 
 
@@ -123,6 +126,26 @@ def dataset(tmp_path_factory):
         return made[name]
 
     return get
+
+
+def test_a_lag_the_data_do_not_fix_is_uncertain_not_wrong(dataset):
+    """servo329: its three x members, each fitted from the set's fit, kept its lag (−0.47,
+    −0.65, −0.80 ms; the machine's integral action leaves none at constant speed), and the
+    prior twin erred 43–58 µm RMS on clean butterflies with a 95 % interval that covered
+    30–57 %. With each fit's own covariance (twin.modal.fit_covariance) the lag is uncertain
+    by more than it is off, and the interval covers the machine."""
+    out, _, prof = dataset("servo329")
+    ir = axis_impulse(prof, "x")
+    k = np.arange(prof.twin.n_taps) * prof.ts_s
+    lag, sd = float(k @ ir.mean), float(np.linalg.norm(k @ ir.factor))
+    assert abs(lag - 0.0) < 1.5 * sd, (lag, sd)
+    models = axis_modal(prof, "x", warn=False).models
+    assert np.ptp([m.lag_s_total for m in models]) < 0.5 * sd  # the spread alone misses it
+    for name in ("log_01.csv", "log_02.csv", "log_03.csv"):
+        log = _log(out, prof, name)
+        mean, std = axis_twin(prof, "x").run(log.cmd_mm[:, 0], log.pos_mm[:, 0], learn=False)
+        inside = float(np.mean(np.abs(log.pos_mm[:, 0] - mean) <= 1.96 * std))
+        assert inside > 0.93, (name, inside)
 
 
 @pytest.mark.parametrize("which", ["servo4", "servo8", "servo43"])
@@ -212,7 +235,7 @@ def test_a_mode_ringing_past_the_memory_leaves_the_lag_right(dataset):
 
 @pytest.mark.parametrize("which", ["servo4", "servo8", "hotend1", "belt11", "corexy13",
                                    "corexy0", "corexy18", "servo5", "servo43", "servo58",
-                                   "servo17", "servo31"])
+                                   "servo17", "servo31", "servo329"])
 def test_clean_logs_of_a_plant_inside_the_spread_are_none(which, dataset):
     """belt11: every clean log was named a resonance_shift x to 49.7 Hz, a move of the
     lightly damped mode inside the members' own band that the draw's first-order directions

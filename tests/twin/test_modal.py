@@ -283,3 +283,57 @@ def test_the_mode_that_carries_the_axis_is_matched_not_the_nearest_small_term():
     belt = int(np.argmax(mm.b0))
     assert fits.member_modes(belt) == (0, 1)
     assert mm.freq_hz[belt] == pytest.approx((56.28 + 56.36) / 2)
+
+
+def test_fit_covariance_matches_the_scatter_of_refits():
+    """Monte Carlo: one FRF of TRUTH (no spread between members) with 1 % noise, fitted 60
+    times from TRUTH; the scatter of the fitted lag (−H'(0)), first mode and its damping
+    against fit_covariance's linear prediction from one of them, and the impulse response's
+    (noise_factor) against the scatter of the refits' responses."""
+    from gcode_feedopt.twin.modal import _pack, fit_covariance, noise_factor
+
+    freq = np.arange(2.0, 240.0, 1.0)
+    rng = np.random.default_rng(3)
+    fits = [fit_modal(freq, noisy_set(TRUTH, freq, 1, rng, spread=0.0)[0], init=TRUTH).model
+            for _ in range(60)]
+    p = np.array([_pack(m, False) for m in fits])
+    lag = np.array([m.lag_s_total for m in fits])
+    h = np.array([m.impulse(TS, 300) for m in fits])
+    row = noisy_set(TRUTH, freq, 1, rng, spread=0.0)[0]
+    one = fit_modal(freq, row, init=TRUTH).model
+    cov = fit_covariance(freq, row, one)
+    sd = np.sqrt(np.diag(cov))
+    # log f1, log ζ1 (packed order: log f, log ζ, c, b0, log τ)
+    for j in (0, 2):
+        assert 0.7 < sd[j] / p[:, j].std(ddof=1) < 1.4, (j, sd[j], p[:, j].std(ddof=1))
+    F = noise_factor(one, cov, TS, 300)
+    k = np.arange(300) * TS
+    assert 0.7 < np.linalg.norm(k @ F) / lag.std(ddof=1) < 1.4, (np.linalg.norm(k @ F), lag.std())
+    sd_h = np.sqrt(np.einsum("ij,ij->i", F, F))
+    mc_h = h.std(axis=0, ddof=1)
+    big = mc_h > 0.3 * mc_h.max()
+    ratio = sd_h[big] / mc_h[big]
+    assert 0.7 < np.median(ratio) < 1.4, np.median(ratio)
+
+
+def test_members_that_kept_the_sets_value_still_carry_the_datas_uncertainty():
+    """The mean of N fits carries (1/N²)·Σ G_i C_i G_iᵀ beside the members' spread
+    (ensemble_impulse with covs): with identical members (no spread at all) the response's
+    covariance is the fits' own over N, less at most 0.1 % of its trace (the directions
+    dropped to save columns, modal._fewest), and never more in any direction."""
+    from gcode_feedopt.twin.modal import fit_covariance, noise_factor
+
+    freq = np.arange(2.0, 240.0, 1.0)
+    row = noisy_set(TRUTH, freq, 1, np.random.default_rng(4), spread=0.0)[0]
+    one = fit_modal(freq, row, init=TRUTH).model
+    cov = fit_covariance(freq, row, one)
+    mean, L = ensemble_impulse([one] * 4, TS, 200, covs=[cov] * 4)
+    F = noise_factor(one, cov, TS, 200)
+    want = F @ F.T / 4
+    lost = want - L @ L.T
+    assert 0.0 <= np.trace(lost) <= 1e-3 * np.trace(want)
+    assert np.linalg.eigvalsh(lost).min() > -1e-12 * np.trace(want)
+    assert L.shape[1] - 3 < F.shape[1]  # three (zero) columns of the members, fewer of the fits
+    mean0, L0 = ensemble_impulse([one] * 4, TS, 200)
+    np.testing.assert_array_equal(mean, mean0)
+    assert not np.any(L0)
