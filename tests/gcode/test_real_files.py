@@ -21,8 +21,10 @@ from ..conftest import GCODE_DIR, REPO
 FILES = sorted(GCODE_DIR.glob("*.gcode")) + [REPO / "sample_gcode" / "part_prusaslicer.gcode",
                                              REPO / "sample_gcode" / "butterfly.gcode"]
 #: whole files whose plan takes minutes (the ArcWelder Benchy: 20.6 M samples, 11.6 h of
-#: print at its cooling speeds): the slow run (`python -m pytest -m slow`, in .ci/run)
-SLOW = ("slic3rpe-arcwelder_3dbenchy-arcs.gcode",)
+#: print at its cooling speeds) or most of one (the Cura and PrusaSlicer Benchies: 60 s and
+#: 38 s of the default run's 17 min 34 s): the slow run (`python -m pytest -m slow`, in .ci/run)
+SLOW = ("slic3rpe-arcwelder_3dbenchy-arcs.gcode", "cura-4.11_ender3_3dbenchy.gcode",
+        "prusaslicer-2.6.1_mini_3dbenchy.gcode")
 
 
 @pytest.mark.parametrize("src", [pytest.param(p, marks=pytest.mark.slow) if p.name in SLOW else p
