@@ -201,14 +201,19 @@ def ensemble_impulse_response(freq_hz, response, ts_s: float, n_taps: int) -> Im
 FACTOR_ENERGY = 1.0 - 1e-3
 
 
-def compress_factor(L: np.ndarray) -> np.ndarray:
-    """An (n, r) factor with the same L Lᵀ up to 1e-3 of its trace and the fewest columns
-    (SVD): the twin convolves the commands with every column, so r sets its cost."""
+def compress_factor(L: np.ndarray, other: float = 0.0) -> np.ndarray:
+    """An (n, r) factor with the same L Lᵀ up to 1e-3 of the whole trace and the fewest
+    columns (SVD): the twin convolves the commands with every column, so r sets its cost.
+
+    ``other``: the trace of a part of the covariance kept beside L, uncompressed (the modal
+    members' spread beside their fits' own term, ``twin.modal.ensemble_impulse``); the part
+    dropped is then at most 1e-3 of both traces together, and may be all of L."""
     if L.shape[1] == 0:
         return L
     U, S, _ = np.linalg.svd(L, full_matrices=False)
     e = np.cumsum(S * S)
-    r = int(np.searchsorted(e, FACTOR_ENERGY * e[-1]) + 1)
+    target = FACTOR_ENERGY * e[-1] - (1.0 - FACTOR_ENERGY) * other
+    r = int(np.searchsorted(e, target) + 1) if target > 0 or not other else 0
     return U[:, :r] * S[:r]
 
 

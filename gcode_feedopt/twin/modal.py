@@ -42,6 +42,8 @@ from scipy.linalg import expm
 from scipy.optimize import least_squares, linear_sum_assignment
 from scipy.signal import find_peaks
 
+from .frf import compress_factor
+
 #: Bounds of the fit. Damping far outside what drives show; lag up to 20 ms (a pole at 8 Hz),
 #: or up to the lowest measured frequency's where the set's fit sits on that bound and the
 #: longer lag explains the data significantly better (``_reach_lag``).
@@ -448,21 +450,11 @@ def _bounds(m: int, f_lo: float, f_hi: float, fit_dc: bool, zeta_max: float = ZE
     return lo, hi
 
 
-def _solve(freq_hz, h, wts, init: ModalModel, fit_dc: bool, max_nfev: int = 300,
-           in_band: bool = False, zeta_max: float = ZETA_MAX, lag_max: float | None = None):
-    """Least-squares fit from ``init``. Modes may lie from a quarter of the lowest measured
-    frequency (``in_band``: from the lowest) to three times the highest; the lag up to
-    ``lag_max`` (None: ``LAG_MAX_S``, or the lowest frequency's reach if ``init``'s lag is
-    already beyond it: a member of a set whose fit needed it, ``_reach_lag``)."""
-    m = init.n_modes
-    f_lo = freq_hz[0] if in_band else 0.25 * freq_hz[0] + 1e-3
-    if lag_max is None:
-        lag_max = _longest_lag(freq_hz) if init.lag_s > LAG_MAX_S * (1 + 1e-9) else LAG_MAX_S
-    lo, hi = _bounds(m, f_lo, 3.0 * freq_hz[-1], fit_dc, zeta_max, lag_max)
-    p0 = np.clip(_pack(init, fit_dc), lo + 1e-9, hi - 1e-9)
-    dc = init.dc_gain
-
-    s = 2j * np.pi * freq_hz
+def _residual(freq_hz, h, wts, m: int, fit_dc: bool, dc: float):
+    """(resid, jac): the weighted residual of an ``m``-mode model's packed parameters (``_pack``)
+    against the FRF ``h`` at ``freq_hz`` (real and imaginary parts stacked) and its analytic
+    Jacobian, as ``_solve`` fits and ``fit_covariance`` linearises them."""
+    s = 2j * np.pi * np.asarray(freq_hz, float)
 
     def parts(p):
         f = np.exp(p[:m])
@@ -501,6 +493,24 @@ def _solve(freq_hz, h, wts, init: ModalModel, fit_dc: bool, max_nfev: int = 300,
         J = J * wts[:, None]
         return np.vstack([J.real, J.imag])
 
+    return resid, jac
+
+
+def _solve(freq_hz, h, wts, init: ModalModel, fit_dc: bool, max_nfev: int = 300,
+           in_band: bool = False, zeta_max: float = ZETA_MAX, lag_max: float | None = None):
+    """Least-squares fit from ``init``. Modes may lie from a quarter of the lowest measured
+    frequency (``in_band``: from the lowest) to three times the highest; the lag up to
+    ``lag_max`` (None: ``LAG_MAX_S``, or the lowest frequency's reach if ``init``'s lag is
+    already beyond it: a member of a set whose fit needed it, ``_reach_lag``)."""
+    m = init.n_modes
+    f_lo = freq_hz[0] if in_band else 0.25 * freq_hz[0] + 1e-3
+    if lag_max is None:
+        lag_max = _longest_lag(freq_hz) if init.lag_s > LAG_MAX_S * (1 + 1e-9) else LAG_MAX_S
+    lo, hi = _bounds(m, f_lo, 3.0 * freq_hz[-1], fit_dc, zeta_max, lag_max)
+    p0 = np.clip(_pack(init, fit_dc), lo + 1e-9, hi - 1e-9)
+    dc = init.dc_gain
+
+    resid, jac = _residual(freq_hz, h, wts, m, fit_dc, dc)
     sol = least_squares(resid, p0, jac=jac, bounds=(lo, hi), x_scale="jac", max_nfev=max_nfev)
     model = _unpack(sol.x, m, fit_dc, dc)
     order = np.argsort(model.freq_hz)
@@ -902,14 +912,11 @@ def fit_covariance(freq_hz, response, model: ModalModel) -> np.ndarray:
     h = np.asarray(response, complex)
     keep = f > 0
     f, h = f[keep], h[keep]
-    wts = _weights(h)
+    if model.delay_s:
+        raise ValueError("fit_covariance: a fitted model has no delay (an extension's)")
     m = model.n_modes
     p0 = _pack(model, False)
-
-    def resid(p):
-        e = (_with_params(model, p).response(f) - h) * wts
-        return np.concatenate([e.real, e.imag])
-
+    resid, jac = _residual(f, h, _weights(h), m, False, model.dc_gain)
     free = np.ones(p0.size, bool)
     silent = _silent(model)
     for j in range(4):
@@ -923,12 +930,7 @@ def fit_covariance(freq_hz, response, model: ModalModel) -> np.ndarray:
     if dof <= 0:
         return cov
     idx = np.flatnonzero(free)
-    J = np.empty((r0.size, idx.size))
-    for c, j in enumerate(idx):
-        d = 1e-6 * max(1.0, abs(p0[j]))
-        p = p0.copy()
-        p[j] += d
-        J[:, c] = (resid(p) - r0) / d
+    J = jac(p0)[:, idx]
     s2 = float(r0 @ r0) / dof
     U, S, Vt = np.linalg.svd(J, full_matrices=False)
     ok = S > 1e-8 * S[0] if S.size else S > 0
@@ -947,23 +949,24 @@ def _with_params(model: ModalModel, p: np.ndarray) -> ModalModel:
 def noise_factor(model: ModalModel, cov: np.ndarray, ts_s: float, n_taps: int) -> np.ndarray:
     """(n_taps, r) factor F of the impulse response's covariance G·cov·Gᵀ = F Fᵀ from the
     fit's parameter covariance ``cov``, G = ∂h/∂θ (linear: the response's derivative along
-    each principal direction of ``cov``, by a central difference of ``FD_STEP``). Linear on
+    each principal direction of ``cov``, by a forward difference of ``FD_STEP``). Linear on
     purpose: two close real poles of a servo fit trade off with parameter deviations of
     e^18 along which the response hardly moves; stepping ±1σ there leaves the model."""
     lam, V = np.linalg.eigh(0.5 * (cov + cov.T))
-    cols = []
     top = float(lam.max()) if lam.size else 0.0
+    dirs = np.flatnonzero(lam > 1e-12 * max(top, 1e-300))
+    if dirs.size == 0:
+        return np.zeros((n_taps, 0))
     p0 = _pack(model, False)
-    for k in np.flatnonzero(lam > 1e-12 * max(top, 1e-300)):
-        step = FD_STEP * V[:, k]
-        hp = _with_params(model, p0 + step).impulse(ts_s, n_taps)
-        hm = _with_params(model, p0 - step).impulse(ts_s, n_taps)
-        cols.append((hp - hm) * (math.sqrt(lam[k]) / (2 * FD_STEP)))
-    return np.array(cols).T if cols else np.zeros((n_taps, 0))
+    h0 = _with_params(model, p0).impulse(ts_s, n_taps)
+    cols = [(_with_params(model, p0 + FD_STEP * V[:, k]).impulse(ts_s, n_taps) - h0)
+            * (math.sqrt(lam[k]) / FD_STEP) for k in dirs]
+    return np.array(cols).T
 
 
-#: step of the central difference in ``noise_factor`` (the packed parameters are logs and
-#: residue shares, all of order 1)
+#: step of the forward difference in ``noise_factor`` (the packed parameters are logs and
+#: residue shares, all of order 1: its error, ~FD_STEP of the derivative, is far below the
+#: covariance's own accuracy; a central difference took twice the impulse responses)
 FD_STEP = 1e-5
 
 
@@ -985,24 +988,5 @@ def ensemble_impulse(models, ts_s: float, n_taps: int, covs=None):
     if covs is not None:
         extra = [noise_factor(m, c, ts_s, n_taps) for m, c in zip(models, covs) if c is not None]
         if extra:
-            L = np.hstack([L, _fewest(np.hstack(extra) / len(models), float(np.sum(L * L)))])
+            L = np.hstack([L, compress_factor(np.hstack(extra) / len(models), float(np.sum(L * L)))])
     return mean, L
-
-
-#: Share of Σ_h's trace the fits' own term may drop (``_fewest``): the twin convolves the
-#: commands with every column of the factor, so the columns cost time.
-NOISE_ENERGY_DROP = 1e-3
-
-
-def _fewest(F: np.ndarray, other: float) -> np.ndarray:
-    """The fewest principal directions of F Fᵀ whose dropped part is at most
-    ``NOISE_ENERGY_DROP`` of the whole trace (F's plus ``other``, the members' spread). The
-    members' columns stay as they are (a plant drawn from the spread is the one it was)."""
-    if F.shape[1] == 0:
-        return F
-    U, S, _ = np.linalg.svd(F, full_matrices=False)
-    e2 = S * S
-    allowed = NOISE_ENERGY_DROP * (other + float(e2.sum()))
-    tail = np.concatenate([np.cumsum(e2[::-1])[::-1], [0.0]])  # tail[r] = Σ_{j ≥ r} S_j²
-    r = int(np.argmax(tail <= allowed))
-    return U[:, :r] * S[:r]

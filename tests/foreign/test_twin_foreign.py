@@ -138,7 +138,7 @@ def test_a_lag_the_data_do_not_fix_is_uncertain_not_wrong(dataset):
     ir = axis_impulse(prof, "x")
     k = np.arange(prof.twin.n_taps) * prof.ts_s
     lag, sd = float(k @ ir.mean), float(np.linalg.norm(k @ ir.factor))
-    assert abs(lag - 0.0) < 1.5 * sd, (lag, sd)
+    assert abs(lag) < 1.5 * sd, (lag, sd)
     models = axis_modal(prof, "x", warn=False).models
     assert np.ptp([m.lag_s_total for m in models]) < 0.5 * sd  # the spread alone misses it
     for name in ("log_01.csv", "log_02.csv", "log_03.csv"):

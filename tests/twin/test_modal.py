@@ -320,7 +320,7 @@ def test_members_that_kept_the_sets_value_still_carry_the_datas_uncertainty():
     """The mean of N fits carries (1/N²)·Σ G_i C_i G_iᵀ beside the members' spread
     (ensemble_impulse with covs): with identical members (no spread at all) the response's
     covariance is the fits' own over N, less at most 0.1 % of its trace (the directions
-    dropped to save columns, modal._fewest), and never more in any direction."""
+    dropped to save columns, frf.compress_factor), and never more in any direction."""
     from gcode_feedopt.twin.modal import fit_covariance, noise_factor
 
     freq = np.arange(2.0, 240.0, 1.0)
