@@ -112,6 +112,9 @@ SETS = {
     # PID servo, 3 FRFs from 1 Hz in 1 Hz steps, 2.5 % noise: its members kept the set's lag
     # (−0.47 … −0.80 ms where the machine has none) along a direction the data do not fix
     "servo329": (329, False),
+    # PID servo, 4 FRFs from 1 Hz in 2 Hz steps, 2.7 % noise: the integral action's pole (4.0
+    # Hz) beside its zero (3.4 Hz), which one member put at 0.18 Hz by overdamping a pair
+    "servo334": (334, False),
 }
 
 
@@ -126,6 +129,28 @@ def dataset(tmp_path_factory):
         return made[name]
 
     return get
+
+
+def test_no_member_puts_a_pole_below_the_band_by_overdamping_a_pair(dataset):
+    """servo334, x: the set's fit puts the integral action's doublet at 4.2 Hz, ζ 0.94 (the
+    machine: a real pole at 4.0 Hz beside a zero at 3.4). One member, fitted from it, kept
+    the pair's frequency in the band (1.0 Hz, the lowest measured) but took its damping to
+    2.8: a real pole at 0.18 Hz, nothing measured below 1 Hz to confirm it, for 2 % less
+    misfit. That member trailed the command by −27 ms (the machine: 0.14 ms), the twin, the
+    members' mean, erred 180–205 µm RMS on clean butterflies where "actual = command" errs
+    245–311, and a pidd plan broke the tolerance 90-fold on the machine (twin.modal.fit_modal:
+    such a member is fitted again with its poles in the band)."""
+    out, _, prof = dataset("servo334")
+    for ax in "xy":
+        f0 = float(prof.axes[ax].frf.freq_hz[prof.axes[ax].frf.freq_hz > 0][0])
+        for m in axis_modal(prof, ax, warn=False).models:
+            assert m.slowest_pole_hz >= f0 * (1 - 1e-9), (ax, m.freq_hz, m.damping)
+            assert abs(m.lag_s_total) < 0.01, (ax, m.lag_s_total)
+    for name in ("log_01.csv", "log_02.csv", "log_03.csv"):
+        log = _log(out, prof, name)
+        mean, _ = axis_twin(prof, "x").run(log.cmd_mm[:, 0], log.pos_mm[:, 0], learn=False)
+        err = _rms(log.pos_mm[:, 0] - mean)
+        assert err < 0.65 * _rms(log.pos_mm[:, 0] - log.cmd_mm[:, 0]), (name, err)
 
 
 def test_a_lag_the_data_do_not_fix_is_uncertain_not_wrong(dataset):
@@ -235,7 +260,7 @@ def test_a_mode_ringing_past_the_memory_leaves_the_lag_right(dataset):
 
 @pytest.mark.parametrize("which", ["servo4", "servo8", "hotend1", "belt11", "corexy13",
                                    "corexy0", "corexy18", "servo5", "servo43", "servo58",
-                                   "servo17", "servo31", "servo329"])
+                                   "servo17", "servo31", "servo329", "servo334"])
 def test_clean_logs_of_a_plant_inside_the_spread_are_none(which, dataset):
     """belt11: every clean log was named a resonance_shift x to 49.7 Hz, a move of the
     lightly damped mode inside the members' own band that the draw's first-order directions
