@@ -422,7 +422,7 @@ class Klipper(Firmware):
     # -- the writer's lines ---------------------------------------------------------------
     def stretch_texts(self, acc: float, r: float, settings, mi: int) -> list[str]:
         """``SET_VELOCITY_LIMIT ACCEL SQUARE_CORNER_VELOCITY`` (the latter scaled by r)."""
-        return [f"SET_VELOCITY_LIMIT ACCEL={_fmt(acc, 0)} SQUARE_CORNER_VELOCITY="
+        return [f"SET_VELOCITY_LIMIT ACCEL={_fmt(acc, 3)} SQUARE_CORNER_VELOCITY="
                 f"{_fmt(float(settings.scv_mm_s[mi]) * r, 3)}"]
 
     def stretch_restore_texts(self, settings, mi: int) -> list[str]:

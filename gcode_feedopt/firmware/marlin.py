@@ -273,7 +273,7 @@ class Marlin(Firmware):
     # -- the writer's lines ---------------------------------------------------------------
     def stretch_texts(self, acc: float, r: float, settings, mi: int) -> list[str]:
         """``M204 P T``, and ``M205 X Y`` scaled by r when the file uses classic jerk."""
-        a = _fmt(acc, 0)
+        a = _fmt(acc, 3)
         out = [f"M204 P{a} T{a}"]
         j = _jerk(settings, mi)
         if j is not None:

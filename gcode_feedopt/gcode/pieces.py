@@ -330,6 +330,17 @@ def plan_peaks(schedule: Schedule, accel_mm_s2: np.ndarray | None, n: int) -> np
     return np.where(ok, speed, np.nan)
 
 
+def stretch_accel(a_mm_s2: float) -> float:
+    """The acceleration a slowed stretch's line gives the firmware for the plan's ``a_mm_s2``:
+    rounded down (the firmware never accelerates harder than planned), to whole mm/s², below 1
+    mm/s² to 0.001 (the least a firmware line takes, gcode.reader). A cell of a move sliced at
+    100 mm/s² slowed to a tenth of its speed plans 1 mm/s²; rounded down to whole units, such
+    a cell wrote ``M204 P0``, which no firmware runs (the output's check refused the file)."""
+    if a_mm_s2 >= 1.0:
+        return float(math.floor(a_mm_s2))
+    return max(math.floor(a_mm_s2 * 1000.0) / 1000.0, 1e-3)
+
+
 def _cell_runs(cells: SlowdownCells, cell_range: list, k: int, lo: float, hi: float):
     """Runs of equal (acceleration, scale) among the planning cells of segment k (cells
     ``cell_range[k]`` to ``cell_range[k + 1]``): list of (s_start, s_end, key) with key None
@@ -344,7 +355,7 @@ def _cell_runs(cells: SlowdownCells, cell_range: list, k: int, lo: float, hi: fl
     runs, vcap, vpk = [], [], []
     for c in range(c0, c1):
         r = float(cells.scale[c])
-        key = None if r >= SCALE_OVERRIDE_BELOW else (math.floor(float(cells.accel_mm_s2[c])), r)
+        key = None if r >= SCALE_OVERRIDE_BELOW else (stretch_accel(float(cells.accel_mm_s2[c])), r)
         a, b = float(cells.s0_mm[c]), float(cells.s0_mm[c + 1])
         vc = float(cells.vcap_mm_s[c])
         pk = math.inf if peaks is None else float(peaks[c])
