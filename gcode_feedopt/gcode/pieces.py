@@ -334,8 +334,8 @@ def stretch_accel(a_mm_s2: float) -> float:
     """The acceleration a slowed stretch's line gives the firmware for the plan's ``a_mm_s2``:
     rounded down (the firmware never accelerates harder than planned), to whole mm/s², below 1
     mm/s² to 0.001 (the least a firmware line takes, gcode.reader). A cell of a move sliced at
-    100 mm/s² slowed to a tenth of its speed plans 1 mm/s²; rounded down to whole units, such
-    a cell wrote ``M204 P0``, which no firmware runs (the output's check refused the file)."""
+    100 mm/s² slowed to a twentieth of its speed plans 0.25 mm/s²; rounded down to whole units,
+    such a cell wrote ``M204 P0``, which no firmware runs (the output's check refused the file)."""
     if a_mm_s2 >= 1.0:
         return float(math.floor(a_mm_s2))
     return max(math.floor(a_mm_s2 * 1000.0) / 1000.0, 1e-3)
