@@ -207,17 +207,39 @@ def _strip(text: str) -> tuple[str, bool]:
     return code.strip(), numbered
 
 
+#: One word of a line pygcode refuses: a letter and a plain number (no exponent).
+_PLAIN_WORD = re.compile(r"\s*([A-Za-z])\s*([-+]?(?:\d+\.?\d*|\.\d+))\s*")
+
+
 def _words(code: str, name: str, line_no: int) -> list[tuple[str, str]] | None:
-    """Split a G/M-code line into (LETTER, value text) with pygcode; None if pygcode cannot
-    parse it (the line then passes through untouched)."""
+    """Split a G/M-code line into (LETTER, value text) with pygcode; None if neither pygcode
+    nor the plain reading below can parse it (the line then passes through untouched).
+
+    pygcode reads L, N and T as integers and refuses ``M204 P1500 T1500.5`` ("block code
+    remaining '.5'"); a firmware reads every parameter as a number. A line made only of
+    letter–number words is read as written when pygcode refuses it: before, the line became an
+    unknown command that stops the planner, and its accelerations were lost (the writer's own
+    ``M204 P0.25 T0.25`` ran at the file's acceleration in the Marlin model)."""
     try:
         words = list(text2words(code))
     except (GCodeWordStrError, ValueError, TypeError):
-        return None
+        return _plain_words(code)
     out = []
     for w in words:
         out.append((w.letter.upper(), w.value_str if hasattr(w, "value_str") else str(w.value)))
     return out
+
+
+def _plain_words(code: str) -> list[tuple[str, str]] | None:
+    """``code`` as (LETTER, value text) words if it is nothing but letter–number words."""
+    out, pos = [], 0
+    while pos < len(code):
+        m = _PLAIN_WORD.match(code, pos)
+        if m is None:
+            return None
+        out.append((m.group(1).upper(), m.group(2)))
+        pos = m.end()
+    return out or None
 
 
 _NUM = re.compile(r"([A-Za-z])\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)")

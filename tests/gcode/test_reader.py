@@ -83,6 +83,19 @@ def test_klipper_macros_and_unknown_codes_pass():
     assert len(prog.moves) == 2
 
 
+def test_fractional_accelerations_are_read_as_the_firmware_reads_them():
+    """pygcode reads T (and L, N) as integers and refuses ``M204 P1500 T1500.5``; Marlin reads
+    every parameter as a number. Such a line was an unknown command that stops the planner, its
+    accelerations lost (the writer's ``M204 P0.25 T0.25`` ran at the file's acceleration)."""
+    prog = rp("M204 P1500 T1500.5\nG1 X1 F600\nM204 P0.25 T0.25\nG1 X2\nM117 T1.5 done\n")
+    m204 = [e for e in prog.events if e.name == "M204"]
+    assert [e.params for e in m204] == [{"P": 1500.0, "T": 1500.5}, {"P": 0.25, "T": 0.25}]
+    assert not any(e.stop for e in m204)
+    # a line that is not only letter-number words still passes as an unknown command
+    assert [e.name for e in prog.events if e.line_no == 4] == ["M117"]
+    assert len(prog.moves) == 2
+
+
 def test_numbered_lines_are_fixed():
     prog = rp("N1 G1 X1 F600*34\nG1 X2\n")
     assert prog.moves[0].fixed and not prog.moves[1].fixed
