@@ -177,7 +177,15 @@ def _candidates(A: _Axis, base: _Model, named_kinds, other: _Axis, base_other: _
 
 
 def _periodic_time(S: _Scorer):
-    """A sinusoid in time, from the three largest spectral peaks of the fit-part residual."""
+    """A sinusoid in time, from the three largest spectral peaks of the fit-part residual.
+
+    Each peak's frequency is scanned against the twin's mean physics (as every parameter,
+    ``_Scorer``); among the peaks, the one whose sinusoid explains most of what the plant draw
+    leaves is taken, the draw being what the test asks an effect to beat. The largest peak of
+    the mean's residual is often a lightly damped mode the twin places a little off, which the
+    draw and the mode's ring (``diagnose._ring_bar``) explain: a foreign belt machine (seed 343,
+    x at 34.6 Hz ζ 0.03, members at 33.8–35.5 Hz) had its 11.7 µm fan at 24.5 Hz (the second
+    peak) passed over for a 34.3 Hz sinusoid the test then refused."""
     ts, fit = S.ts, S.fit
     t = np.arange(S.cmd.size) * ts
     rf = S.base.resid_mean[fit]
@@ -202,15 +210,16 @@ def _periodic_time(S: _Scorer):
     best = None
     tried = 0
     for f0 in peaks:
-        fr, v, n = _scan(lambda fr: S.score_extra(sincos_t(fr)),
+        fr, _, n = _scan(lambda fr: S.score_extra(sincos_t(fr)),
                          np.linspace(f0 - 2 * df, f0 + 2 * df, 9))
         tried += n
+        m = S.with_extra(sincos_t(fr))
+        v = -float(np.sum(m.resid[fit] ** 2))
         if best is None or v > best[1]:
-            best = (fr, v)
+            best = (fr, v, m)
     if best is None:
         return None
-    fr = best[0]
-    m = S.with_extra(sincos_t(fr))
+    fr, _, m = best
     w = m.w_mean[-2:]
     return ("periodic_time", "time", {"frequency_hz": float(fr),
                                       "amplitude_mm": float(np.hypot(*w)),
