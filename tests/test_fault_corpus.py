@@ -208,7 +208,7 @@ add("opt UTF-16 file", Case(["in.gcode", "-o", "o.gcode", *OPT],
 add("opt only comments", Case(["in.gcode", "-o", "o.gcode", *OPT], {"in.gcode": b"; a\n; b\n"},
                               "no g0/g1"))
 add("opt G4 a million years", Case(["in.gcode", "-o", "o.gcode", *OPT],
-                                   {"in.gcode": GOOD + b"G4 S1e12\n" + GOOD}, "longer than"))
+                                   {"in.gcode": GOOD + b"G4 S1000000000000\n" + GOOD}, "longer than"))
 add("opt M204 S0", Case(["in.gcode", "-o", "o.gcode", *OPT], {"in.gcode": b"M204 S0\n" + GOOD},
                         "m204 s0"))
 add("opt M201 X0", Case(["in.gcode", "-o", "o.gcode", *OPT], {"in.gcode": b"M201 X0 Y0\n" + GOOD},
@@ -220,12 +220,14 @@ add("opt M205 negative", Case(["in.gcode", "-o", "o.gcode", *OPT],
 add("opt SET_VELOCITY_LIMIT ACCEL=0", Case(
     ["in.gcode", "-o", "o.gcode", *OPT], {"in.gcode": b"SET_VELOCITY_LIMIT ACCEL=0\n" + GOOD},
     "accel=0"))
-add("opt G92 E1e10", Case(["in.gcode", "-o", "o.gcode", *OPT], {"in.gcode": b"G92 E1e10\n" + GOOD},
-                          "filament"))
+add("opt G92 E1e10", Case(["in.gcode", "-o", "o.gcode", *OPT],
+                          {"in.gcode": b"G92 E10000000000\n" + GOOD}, "filament"))
+add("opt exponent", Case(["in.gcode", "-o", "o.gcode", *OPT], {"in.gcode": b"G92 E1e10\n" + GOOD},
+                         "e appears twice"))
 add("opt E1e12", Case(["in.gcode", "-o", "o.gcode", *OPT],
-                      {"in.gcode": b"G1 X5 E1e12 F300\n" + GOOD}, "filament"))
+                      {"in.gcode": b"G1 X5 E1000000000000 F300\n" + GOOD}, "filament"))
 add("opt arc radius 1e9", Case(["in.gcode", "-o", "o.gcode", *OPT],
-                               {"in.gcode": b"G1 X0 Y0 F600\nG2 X1 Y0 I0.5 J1e9\n" + GOOD},
+                               {"in.gcode": b"G1 X0 Y0 F600\nG2 X1 Y0 I0.5 J1000000000\n" + GOOD},
                                "radius"))
 add("opt Xinf", Case(["in.gcode", "-o", "o.gcode", *OPT], {"in.gcode": b"G1 Xinf F300\n" + GOOD},
                      "cannot read"))

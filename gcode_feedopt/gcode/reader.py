@@ -207,8 +207,12 @@ def _strip(text: str) -> tuple[str, bool]:
     return code.strip(), numbered
 
 
-#: One word of a line pygcode refuses: a letter and a plain number (no exponent).
-_PLAIN_WORD = re.compile(r"\s*([A-Za-z])\s*([-+]?(?:\d+\.?\d*|\.\d+))\s*")
+#: A number as the firmware reads it: digits with at most one point, no exponent. Marlin's
+#: ``value_float`` cuts a value at ``E`` and Klipper splits a line at every letter, so
+#: ``X1e9`` is X1 and E9 to both (and to pygcode), as ``G1X10E1`` is X10 and E1.
+_DECIMAL = r"(?:\d+\.?\d*|\.\d+)"
+#: One word of a line pygcode refuses: a letter and a plain number.
+_PLAIN_WORD = re.compile(r"\s*([A-Za-z])\s*([-+]?" + _DECIMAL + r")\s*")
 
 
 def _words(code: str, name: str, line_no: int) -> list[tuple[str, str]] | None:
@@ -242,14 +246,14 @@ def _plain_words(code: str) -> list[tuple[str, str]] | None:
     return out or None
 
 
-_NUM = re.compile(r"([A-Za-z])\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)")
+_NUM = re.compile(r"([A-Za-z])\s*([-+]?" + _DECIMAL + ")")
 
 
 #: A plain G0/G1 line: upper-case words separated by spaces, numbers as pygcode reads them
 #: (no sign +, no exponent), an optional ``;`` comment, the line's ending. Anything else goes
 #: through pygcode.
-_FAST_MOTION = re.compile(r"G0?([01])((?: +[XYZEF]-?(?:\d+\.?\d*|\.\d+))*) *(?:;[^\r\n]*)?(?:\r?\n)?\Z")
-_FAST_WORD = re.compile(r"([XYZEF])(-?(?:\d+\.?\d*|\.\d+))")
+_FAST_MOTION = re.compile(r"G0?([01])((?: +[XYZEF]-?" + _DECIMAL + r")*) *(?:;[^\r\n]*)?(?:\r?\n)?\Z")
+_FAST_WORD = re.compile(r"([XYZEF])(-?" + _DECIMAL + ")")
 
 
 def _raw_values(code: str) -> dict[str, str]:
@@ -317,6 +321,8 @@ def _tokenize(text: str, name: str, i: int, events: list, n_moves: int):
     for L, v in words:
         if L in "GMN" or (L == "T" and not (gcodes or mcodes)):
             continue
+        if L in params and (gcodes or any(_m_number(m) in READ_MCODES for m in mcodes)):
+            _refuse_twice(L, code, name, i)
         params[L] = raw_vals.get(L, v)
     if gcodes or mcodes:
         tcodes = []  # "M204 P500 T500", "M104 T1 S200": T is a parameter there
@@ -324,6 +330,37 @@ def _tokenize(text: str, name: str, i: int, events: list, n_moves: int):
         raise GCodeError(f"{name}:{i + 1}: a word has no value in {code!r}; give each "
                          "word a number or remove it")
     return code, numbered, gcodes, mcodes, tcodes, params
+
+
+#: M codes whose parameters the reader or the firmware models use: a word given twice there
+#: is refused (as on every G line).
+READ_MCODES = {82, 83, 201, 203, 204, 205, 220, 221, 593}
+
+
+def _m_number(m: str) -> int | None:
+    try:
+        return int(float(m))
+    except ValueError:
+        return None
+
+
+def _first_repeat(words) -> str:
+    """The first letter of (letter, value) ``words`` that was given before."""
+    seen = set()
+    for L, _ in words:
+        if L in seen:
+            return L
+        seen.add(L)
+    raise ValueError("no letter repeats")
+
+
+def _refuse_twice(letter: str, code: str, name: str, i: int) -> None:
+    """A line that gives one word twice: Marlin and Klipper need not take the same one, and a
+    number written with an exponent reads as two words (``E1e10`` is E1 and E10)."""
+    hint = (" (a number with an exponent? firmware reads 1e10 as 1 and a new E word)"
+            if re.search(r"\d[eE][-+]?\d", code) else "")
+    raise GCodeError(f"{name}:{i + 1}: {letter} appears twice in {code!r}{hint}; give each word "
+                     "once, numbers written out in full")
 
 
 #: Coordinates beyond this are refused as absurd (no machine is 100 m long), mm.
@@ -435,7 +472,10 @@ class _Reader:
                 # its one G code is the motion (what the loop over gcodes would find)
                 motion = 1 if fm.group(1) == "1" else 0
                 gcodes = mcodes = tcodes = ()
-                params = dict(fast_words(fm.group(2)))
+                words = fast_words(fm.group(2))
+                params = dict(words)
+                if len(params) != len(words):
+                    _refuse_twice(_first_repeat(words), code, name, i)
             else:
                 tok = _tokenize(text, name, i, events, len(moves))
                 if tok is None:

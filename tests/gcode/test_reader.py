@@ -120,4 +120,22 @@ def test_empty_and_no_moves():
 
 def test_absurd_coordinates_refused():
     with pytest.raises(GCodeError, match="beyond"):
-        rp("G1 X1e9 F600\n")
+        rp("G1 X1000000000 F600\n")
+
+
+@pytest.mark.parametrize("fast", [True, False])
+def test_numbers_end_at_the_next_letter_as_the_firmware_reads_them(fast):
+    # Marlin's value_float cuts a value at E and Klipper splits a line at every letter:
+    # X1e1 is X1 and E1 to both, as compact G1X10E1 is X10 and E1; the old reader took
+    # 1e1 as 10 (moved to X10 and extruded the E1 pygcode also gave)
+    prog = read_program(b"M83\nG1 X1e1 F600\nG1X10E1\n", "t.gcode", fast=fast)
+    assert [m.end_mm[0] for m in prog.moves] == [1.0, 10.0]
+    assert [m.words["E"] for m in prog.moves] == ["1", "1"]
+
+
+@pytest.mark.parametrize("line", [b"G92 E1e10", b"G1 X1 X2 F600", b"M204 P1e3 P2000"])
+def test_a_word_given_twice_is_refused(line):
+    with pytest.raises(GCodeError, match="appears twice") as exc:
+        read_program(line + b"\nG1 X1 F600\n", "t.gcode")
+    assert str(exc.value).startswith("t.gcode:1: ")
+    assert ("exponent" in str(exc.value)) == (b"e" in line.lower().split(b" ", 1)[1])
