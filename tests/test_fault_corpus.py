@@ -208,7 +208,8 @@ add("opt UTF-16 file", Case(["in.gcode", "-o", "o.gcode", *OPT],
 add("opt only comments", Case(["in.gcode", "-o", "o.gcode", *OPT], {"in.gcode": b"; a\n; b\n"},
                               "no g0/g1"))
 add("opt G4 a million years", Case(["in.gcode", "-o", "o.gcode", *OPT],
-                                   {"in.gcode": GOOD + b"G4 S1000000000000\n" + GOOD}, "longer than"))
+                                   {"in.gcode": GOOD + b"G4 S1000000000000\n" + GOOD},
+                                   "longer than"))
 add("opt M204 S0", Case(["in.gcode", "-o", "o.gcode", *OPT], {"in.gcode": b"M204 S0\n" + GOOD},
                         "m204 s0"))
 add("opt M201 X0", Case(["in.gcode", "-o", "o.gcode", *OPT], {"in.gcode": b"M201 X0 Y0\n" + GOOD},
@@ -220,8 +221,8 @@ add("opt M205 negative", Case(["in.gcode", "-o", "o.gcode", *OPT],
 add("opt SET_VELOCITY_LIMIT ACCEL=0", Case(
     ["in.gcode", "-o", "o.gcode", *OPT], {"in.gcode": b"SET_VELOCITY_LIMIT ACCEL=0\n" + GOOD},
     "accel=0"))
-add("opt G92 E1e10", Case(["in.gcode", "-o", "o.gcode", *OPT],
-                          {"in.gcode": b"G92 E10000000000\n" + GOOD}, "filament"))
+add("opt G92 E1e10 written out", Case(["in.gcode", "-o", "o.gcode", *OPT],
+                                      {"in.gcode": b"G92 E10000000000\n" + GOOD}, "filament"))
 add("opt exponent", Case(["in.gcode", "-o", "o.gcode", *OPT], {"in.gcode": b"G92 E1e10\n" + GOOD},
                          "e appears twice"))
 add("opt E1e12", Case(["in.gcode", "-o", "o.gcode", *OPT],

@@ -252,7 +252,8 @@ _NUM = re.compile(r"([A-Za-z])\s*([-+]?" + _DECIMAL + ")")
 #: A plain G0/G1 line: upper-case words separated by spaces, numbers as pygcode reads them
 #: (no sign +, no exponent), an optional ``;`` comment, the line's ending. Anything else goes
 #: through pygcode.
-_FAST_MOTION = re.compile(r"G0?([01])((?: +[XYZEF]-?" + _DECIMAL + r")*) *(?:;[^\r\n]*)?(?:\r?\n)?\Z")
+_FAST_MOTION = re.compile(r"G0?([01])((?: +[XYZEF]-?" + _DECIMAL
+                          + r")*) *(?:;[^\r\n]*)?(?:\r?\n)?\Z")
 _FAST_WORD = re.compile(r"([XYZEF])(-?" + _DECIMAL + ")")
 
 

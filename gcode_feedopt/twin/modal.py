@@ -546,9 +546,10 @@ def _widen(f, h, wts, model: ModalModel, rms: float, fit_dc: bool, in_band: bool
     Not past ``POLE_FLOOR``·f₀: on a servo measured from 3 Hz (tests/foreign, seed 347, x: the
     integral action's pole at 15.6 Hz lifts |H| to 1.025 at 3 Hz) the set's fit took a pair
     at 4.5 Hz to ζ 2.0, a pole at 1.2 Hz; every member starts from that fit, four of six went
-    on to 0.5–1.5 Hz, and the twin erred 81–129 µm on clean logs where "actual = command" errs 61–97 and the first pidd print
-    broke the tolerance. Half the band, not the band: seed 85's pole is at 3.0 Hz on a band
-    from 5 Hz, and held in the band its first print broke the tolerance (docs/twin.md §0)."""
+    on to 0.5–1.5 Hz, the twin erred 81–129 µm on clean logs where "actual = command" errs
+    61–97, and the first pidd print broke the tolerance. Half the band, not the band: seed
+    85's pole is at 3.0 Hz on a band from 5 Hz, and held in the band its first print broke
+    the tolerance (docs/twin.md §0)."""
     if not np.any(model.damping >= ZETA_MAX * (1 - 1e-6)):
         return model, rms
     wide, wrms = _solve(f, h, wts, model, fit_dc, in_band=in_band, zeta_max=ZETA_MAX_REAL)
