@@ -22,7 +22,9 @@ CASES = {
     "g20 inches": (b"G20\n" + GOOD_TAIL, ERR, "G20"),
     "word without value": (b"G1 X F300\n" + GOOD_TAIL, ERR, "cannot read the motion"),
     "feed zero": (b"G1 X1 F0\n" + GOOD_TAIL, ERR, "must be positive"),
-    "feed 1e-30": (b"G1 X1 F1e-30\n" + GOOD_TAIL, ERR, "below 0.1 mm/min"),
+    # 1e-30 written out: an exponent is read as the firmware reads it, F1 then E-30
+    "feed 1e-30": (b"G1 X1 F0." + b"0" * 29 + b"1\n" + GOOD_TAIL, ERR, "below 0.1 mm/min"),
+    "feed with an exponent": (b"G1 X1 E1 F1e-30\n" + GOOD_TAIL, ERR, "E appears twice"),
     "no feed at all": (b"G1 X1 Y1\nG1 X2 Y2 E1\n", ERR, "without any feed"),
     "absurd coordinates": (b"G1 X99999999 F300\n" + GOOD_TAIL, ERR, "beyond"),
     "nan coordinate": (b"G1 Xnan F300\n" + GOOD_TAIL, ERR, ""),
