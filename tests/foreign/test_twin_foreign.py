@@ -124,6 +124,12 @@ SETS = {
     # PID servo, 3 FRFs from 5 Hz in 0.5 Hz steps, 2.6 % noise, whose integral action's real
     # pole sits below the band, at 3.03 Hz on y
     "servo85": (85, False),
+    # PID servo, 7 FRFs from 5 Hz in 0.5 Hz steps, 1.0 % noise: y's integral action puts a
+    # real pole at 7.85 Hz, which the set's fit overdamped to a pole at 2.9 Hz
+    "servo238": (238, False),
+    # PID servo, 3 FRFs from 1.5 Hz in 1 Hz steps, 2.9 % noise: real poles at 2.9 Hz (x) and
+    # 3.3 Hz (y), which the set's fit put at 1.2 and 1.0 Hz
+    "servo16": (16, False),
 }
 
 
@@ -184,6 +190,35 @@ def test_a_pole_a_little_below_the_band_stands(dataset):
     assert slow < f0
     for m in axis_modal(prof, "y", warn=False).models:
         assert abs(m.slowest_pole_hz / slow - 1) < 0.25, (slow, m.freq_hz, m.damping)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("which, axis", [("servo238", "y"), ("servo16", "x"), ("servo16", "y")])
+def test_a_pole_below_the_band_only_where_the_data_demand_it(which, axis, dataset):
+    """servo238, y: the machine's slow real pole is at 7.85 Hz, the band starts at 5 Hz; the
+    set's fit took a pair past ζ 1 to a pole at 2.9 Hz (above half the band) for a drop of
+    the residual the held fit matches within noise, and five of its seven members followed
+    to 2.5–2.9 Hz. servo16: poles at 2.9 / 3.3 Hz, band from 1.5 Hz, put at 1.2 / 1.0 Hz; its
+    members went to 0.5–1.7 Hz and the first pidd print broke the tolerance (281 µm RMS γ,
+    68 % within at η 0.95). ``_widen`` now holds the pole at f₀ unless leaving it below
+    explains the data significantly better (``BELOW_BAND_CHI2``); servo85's pole at 3.0 Hz
+    below a band from 5 Hz still stands (test_a_pole_a_little_below_the_band_stands)."""
+    out, _, prof = dataset(which)
+    mach = make_machine(SETS[which][0])
+    A, _, _ = mach.chans[axis].ss()
+    slow = min(abs(e.real) for e in np.linalg.eigvals(A) if abs(e.imag) < 1e-6) / (2 * np.pi)
+    f0 = float(prof.axes[axis].frf.freq_hz[0])
+    assert f0 < slow
+    poles = [m.slowest_pole_hz for m in axis_modal(prof, axis, warn=False).models]
+    assert min(poles) >= f0 * (1 - 1e-3), poles
+    if which == "servo238":  # 7 FRFs at 1 % noise: the held fit finds the machine's pole
+        assert abs(np.median(poles) / slow - 1) < 0.05, (slow, poles)
+    i = "xy".index(axis)
+    for name in ("log_01.csv", "log_02.csv", "log_03.csv"):
+        log = _log(out, prof, name)
+        mean, _ = axis_twin(prof, axis).run(log.cmd_mm[:, i], log.pos_mm[:, i], learn=False)
+        err = _rms(log.pos_mm[:, i] - mean)
+        assert err < 0.5 * _rms(log.pos_mm[:, i] - log.cmd_mm[:, i]), (name, err)
 
 
 def test_a_lag_the_data_do_not_fix_is_uncertain_not_wrong(dataset):
