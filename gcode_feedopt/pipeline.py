@@ -570,7 +570,8 @@ def _short_of_stringency(info: dict, req: PlanRequest, ts_s: float) -> str | Non
     The slow-down gives up on samples whose chance bound stays over the tolerance with their
     cause window at its floor (optimize.slowdown): a disturbance at rest that no speed
     changes, or an uncertainty so wide that no speed it may choose brings the bound within.
-    Those stretches run at the firmware's speed, and the file keeps nothing of the promise:
+    Those stretches run as slowly as the plan may (where standing still would not help, at the
+    firmware's speed: optimize.slowdown), and the file keeps nothing of the promise:
     on a servo measured with 2.7 % noise from 1 Hz (tests/foreign, seed 334, before one of its
     members was fitted again in the band: twin.modal.fit_modal) the plan gave up 2,692
     samples, expected 32 % of samples within, and ran 223 µm RMS γ on the machine (2.5
@@ -587,7 +588,8 @@ def _short_of_stringency(info: dict, req: PlanRequest, ts_s: float) -> str | Non
             f"{100 * eta:g} % were asked"
             + (f" (RMS contour error {1000 * rms:.1f} µm)" if rms is not None else "")
             + (f": {n} samples ({n * ts_s:.1f} s of motion) stay over it however far it "
-               "slows them, and run at the firmware's speed" if n else "")
+               "slows them (they run at the slowest speed it may choose, or at the firmware's "
+               "where standing still would not help)" if n else "")
             + "; what it does not know about this machine is too wide for the tolerance "
             "(profile FRFs measured with little noise from a few Hz, or `gcode-feedopt learn` "
             "on a log of this print, narrow it)")

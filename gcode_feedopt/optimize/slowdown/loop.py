@@ -119,16 +119,19 @@ class _Loop:
         fac[grid.fixed | self.relaxed] = 1.0
         # a violation that standing still would not cure (the error at rest, and the
         # evaluator's uncertainty at rest, leave no room), or whose widest cause window is
-        # at the floor, is not the motion's: give up on it and give its cells their speed
-        # back
-        hopeless_v = room <= 0.0
-        hopeless_v |= at_floor
+        # at the floor, is given up on. The first is not the motion's: its cells get their
+        # speed back. The second's stay at the floor, where the twin still expects less
+        # error than at speed (seed 164 of tests/foreign: given back, 238 µm RMS γ; kept, 0)
+        at_rest = room <= 0.0
+        hopeless_v = at_rest | at_floor
         new = np.maximum(scale * fac, st.scale_min)
         if hopeless_v.any():
             hopeless = np.zeros(grid.n_cells, bool)
             hopeless[cells[hopeless_v[owner]]] = True
             self.relaxed[hopeless] = True
-            new = np.where(hopeless, 1.0, new)
+            back = np.zeros(grid.n_cells, bool)
+            back[cells[at_rest[owner]]] = True
+            new = np.where(back, 1.0, new)
         if np.array_equal(new, scale):
             return False
         state.set_scale(new)
