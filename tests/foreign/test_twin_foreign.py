@@ -124,7 +124,7 @@ SETS = {
     # PID servo, 3 FRFs from 5 Hz in 0.5 Hz steps, 2.6 % noise, whose integral action's real
     # pole sits below the band, at 3.03 Hz on y
     "servo85": (85, False),
-    # PID servo, 7 FRFs from 5 Hz in 0.5 Hz steps, 1.0 % noise: y's integral action puts a
+    # PID servo, 7 FRFs from 5 Hz in 1 Hz steps, 1.0 % noise: y's integral action puts a
     # real pole at 7.85 Hz, which the set's fit overdamped to a pole at 2.9 Hz
     "servo238": (238, False),
     # PID servo, 3 FRFs from 1.5 Hz in 1 Hz steps, 2.9 % noise: real poles at 2.9 Hz (x) and
