@@ -571,9 +571,18 @@ def _widen(f, h, wts, model: ModalModel, rms: float, fit_dc: bool, in_band: bool
         return model, rms
     if in_band and wide.slowest_pole_hz < f[0] <= model.slowest_pole_hz:
         held, hrms = _hold_slow_poles(f, h, wts, wide, fit_dc, f[0])
-        if held is not None and 2 * f.size * (hrms ** 2 / wrms ** 2 - 1) < BELOW_BAND_CHI2:
+        if held is not None and _bound_lr(f.size, hrms, wrms) < BELOW_BAND_CHI2:
             wide, wrms = held, hrms
     return (wide, wrms) if wrms < rms else (model, rms)
+
+
+def _bound_lr(bins: int, rms_bound: float, rms_free: float) -> float:
+    """The likelihood ratio of one bound on a fit over ``bins`` complex bins: the drop of the
+    residual's sum of squares over its noise level, 2K·(rms²_bound/rms²_free − 1); ½χ²(0) +
+    ½χ²(1) where the bound holds (``BELOW_BAND_CHI2``, ``LAG_CHI2``)."""
+    if rms_free <= 0.0:
+        return math.inf
+    return 2 * bins * ((rms_bound / rms_free) ** 2 - 1)
 
 
 def _hold_slow_poles(f, h, wts, model: ModalModel, fit_dc: bool, floor_hz: float):
@@ -628,7 +637,7 @@ def _reach_lag(f, h, wts, model: ModalModel, rms: float, fit_dc: bool, in_band: 
     zmax = ZETA_MAX_REAL if np.max(model.damping) > ZETA_MAX else ZETA_MAX
     reach, rrms = _solve(f, h, wts, model, fit_dc, in_band=in_band, zeta_max=zmax,
                          lag_max=_longest_lag(f))
-    if rrms <= 0.0 or 2 * f.size * ((rms / rrms) ** 2 - 1) <= LAG_CHI2:
+    if rrms <= 0.0 or _bound_lr(f.size, rms, rrms) <= LAG_CHI2:
         return model, rms
     return reach, rrms
 
