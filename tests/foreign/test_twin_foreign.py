@@ -63,6 +63,13 @@ def _rms(v):
     return float(np.sqrt(np.mean(np.square(v))))
 
 
+def _slowest_real_pole_hz(which: str, axis: str) -> float:
+    """The slowest real pole of data set ``which``'s machine on ``axis``, Hz (a servo's
+    integral action)."""
+    A, _, _ = make_machine(SETS[which][0]).chans[axis].ss()
+    return min(abs(e.real) for e in np.linalg.eigvals(A) if abs(e.imag) < 1e-6) / (2 * np.pi)
+
+
 #: The data sets the tests use: name -> (seed, with effect logs (True, False or "more": the
 #: drive's effects instead)[, fan Hz]), each made once per module.
 SETS = {
@@ -189,9 +196,7 @@ def test_a_pole_a_little_below_the_band_stands(dataset):
     in the band they put it at 6.3–7.1 Hz and the first pidd print broke the tolerance (3.8 µm
     RMS γ against 2.5, 93.6 % within at η 0.95, E_max 0.05 mm)."""
     _, _, prof = dataset("servo85")
-    mach = make_machine(SETS["servo85"][0])
-    A, _, _ = mach.chans["y"].ss()
-    slow = min(abs(e.real) for e in np.linalg.eigvals(A) if abs(e.imag) < 1e-6) / (2 * np.pi)
+    slow = _slowest_real_pole_hz("servo85", "y")
     f0 = float(prof.axes["y"].frf.freq_hz[0])
     assert slow < f0
     for m in axis_modal(prof, "y", warn=False).models:
@@ -210,9 +215,7 @@ def test_a_pole_below_the_band_only_where_the_data_demand_it(which, axis, datase
     explains the data significantly better (``BELOW_BAND_CHI2``); servo85's pole at 3.0 Hz
     below a band from 5 Hz still stands (test_a_pole_a_little_below_the_band_stands)."""
     out, _, prof = dataset(which)
-    mach = make_machine(SETS[which][0])
-    A, _, _ = mach.chans[axis].ss()
-    slow = min(abs(e.real) for e in np.linalg.eigvals(A) if abs(e.imag) < 1e-6) / (2 * np.pi)
+    slow = _slowest_real_pole_hz(which, axis)
     f0 = float(prof.axes[axis].frf.freq_hz[0])
     assert f0 < slow
     poles = [m.slowest_pole_hz for m in axis_modal(prof, axis, warn=False).models]
@@ -235,9 +238,7 @@ def test_a_lag_below_the_band_where_the_data_demand_it(dataset):
     kept 91.2 % within at η 0.95. Past f₀ the lag may go to a pole at ``POLE_FLOOR``·f₀ where
     that one bound's likelihood ratio beats ``BELOW_BAND_CHI2``, as a pair's pole may."""
     out, _, prof = dataset("servo367")
-    mach = make_machine(SETS["servo367"][0])
-    A, _, _ = mach.chans["y"].ss()
-    slow = min(abs(e.real) for e in np.linalg.eigvals(A) if abs(e.imag) < 1e-6) / (2 * np.pi)
+    slow = _slowest_real_pole_hz("servo367", "y")
     f0 = float(prof.axes["y"].frf.freq_hz[0])
     assert slow < f0
     poles = [1 / (2 * np.pi * m.lag_s) for m in axis_modal(prof, "y", warn=False).models]
@@ -316,16 +317,14 @@ def test_a_servos_slow_real_pole_is_fitted_where_it_is(which, axes, dataset):
     seed 43 at 5.94 Hz (y) and 8.36 Hz (x), the eigenvalues of its own physics. With the lag
     bounded at 20 ms (a pole at ≥ 8 Hz) every member's y fit sat on the bound, the data's DC
     gain read 1.018 and the twin erred 75 µm RMS on a butterfly; the lag may now reach the
-    lowest measured frequency (never below it: nothing measured there confirms it). Seed 58
-    x: 7.3 Hz, 9 % beyond the bound, where the data said so at p = 0.0014 (twin.modal,
-    ``_reach_lag``): on the bound (7.96 Hz) its twin erred 23–31 µm (its y's slow pole, at
-    14.3 Hz, is a pair of real poles with the loop's, not the lag)."""
+    lowest measured frequency (below it only where the data demand it: test_a_lag_below_
+    the_band_where_the_data_demand_it). Seed 58 x: 7.3 Hz, 9 % beyond the bound, where the
+    data said so at p = 0.0014 (twin.modal, ``_reach_lag``): on the bound (7.96 Hz) its twin
+    erred 23–31 µm (its y's slow pole, at 14.3 Hz, is a pair of real poles with the loop's,
+    not the lag)."""
     out, _, prof = dataset(which)
-    mach = make_machine(SETS[which][0])
     for ax in axes:
-        A, _, _ = mach.chans[ax].ss()
-        ev = np.linalg.eigvals(A)
-        slow = min(abs(e.real) for e in ev if abs(e.imag) < 1e-6) / (2 * np.pi)
+        slow = _slowest_real_pole_hz(which, ax)
         f0 = float(prof.axes[ax].frf.freq_hz[0])
         poles = [1 / (2 * np.pi * m.lag_s) for m in axis_modal(prof, ax, warn=False).models]
         assert min(poles) >= f0 * (1 - 1e-9), (ax, poles)
