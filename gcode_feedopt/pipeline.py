@@ -441,7 +441,8 @@ def _report(run: _Run) -> Report:
                "accel_lines": result.accel_lines, "accel_override_lines": result.override_lines,
                **({"executed": run.executed} if run.executed is not None else {}),
                **{k: info[k] for k in ("optimizer", "window_status", "fallback_windows",
-                                        "relaxed_windows", "relaxed_samples", "budget_samples",
+                                        "relaxed_windows", "relaxed_samples",
+                                        "relaxed_at_rest_samples", "budget_samples",
                                         "rounds", "whole_file_checks", "samples_evaluated",
                                         "slowed_length_fraction", "predicted_rms_gamma_mm",
                                         "compute_s", "solver_s", "accel_chosen_mm_s2")
@@ -583,13 +584,20 @@ def _short_of_stringency(info: dict, req: PlanRequest, ts_s: float) -> str | Non
     if p is None or eta is None or p >= eta - SHORT_OF_STRINGENCY * (1.0 - eta):
         return None
     n = int(info.get("relaxed_samples", 0))
+    rest = min(int(info.get("relaxed_at_rest_samples", 0)), n)
     rms = info.get("predicted_rms_gamma_mm")
+    if rest == 0:
+        how = "they run at the slowest speed it may choose"
+    elif rest == n:
+        how = "they run at the firmware's speed: standing still would not help them"
+    else:
+        how = (f"{n - rest} run at the slowest speed it may choose, {rest} at the firmware's "
+               "speed, where standing still would not help")
     return (f"the twin expects only {100 * p:.2f} % of samples within tolerance where "
             f"{100 * eta:g} % were asked"
             + (f" (RMS contour error {1000 * rms:.1f} µm)" if rms is not None else "")
             + (f": {n} samples ({n * ts_s:.1f} s of motion) stay over it however far it "
-               "slows them (they run at the slowest speed it may choose, or at the firmware's "
-               "where standing still would not help)" if n else "")
+               f"slows them ({how})" if n else "")
             + "; what it does not know about this machine is too wide for the tolerance "
             "(profile FRFs measured with little noise from a few Hz, or `gcode-feedopt learn` "
             "on a log of this print, narrow it)")

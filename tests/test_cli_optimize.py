@@ -283,6 +283,16 @@ def test_a_plan_the_twin_expects_to_fall_short_of_the_stringency_says_so():
     assert note.startswith("the twin expects only 31.87 % of samples within tolerance where 95 %")
     assert "570.7 µm" in note and "2692 samples (5.4 s of motion)" in note
     assert "gcode-feedopt learn" in note
+    # where they run: at the floor (the twin still expects less error there), at the
+    # firmware's speed (standing still would not cure them), or both, counted
+    assert "(they run at the slowest speed it may choose)" in note
+    rest = _short_of_stringency(dict(info, relaxed_at_rest_samples=2692),
+                                SimpleNamespace(stringency=0.95), 0.002)
+    assert "(they run at the firmware's speed: standing still would not help them)" in rest
+    both = _short_of_stringency(dict(info, relaxed_at_rest_samples=692),
+                                SimpleNamespace(stringency=0.95), 0.002)
+    assert ("(2000 run at the slowest speed it may choose, 692 at the firmware's speed, "
+            "where standing still would not help)") in both
     edge = dict(info, predicted_within_fraction=0.98999914, relaxed_samples=685)
     assert _short_of_stringency(edge, SimpleNamespace(stringency=0.99), 0.002) is None
     short = dict(edge, predicted_within_fraction=0.985)

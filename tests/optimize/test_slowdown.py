@@ -285,6 +285,8 @@ def test_a_disturbance_larger_than_the_tolerance_is_given_up_on_not_crawled_thro
                         overshoot_reach_mm=1.4)
     res = plan_slowdown(path, _limits(path, ender, fw), ev, ts_s=ender.ts_s)
     assert res.info["relaxed_samples"] > 0
+    # told apart from stretches given up at the floor: these are the disturbance's
+    assert 0 < res.info["relaxed_at_rest_samples"] <= res.info["relaxed_samples"]
     F = plan_kinematic(path, ender, fw_limits=fw)
     assert res.s_mm.size < 1.3 * F.s_mm.size
 

@@ -90,7 +90,7 @@ from .. import parallel
 from .budget import expected_share, left_over
 from .grid import PlanGrid
 from .groups import plan_in_groups
-from .loop import optimize
+from .loop import optimize, room_at_rest
 from .state import PlanState
 
 
@@ -200,6 +200,16 @@ def _cell_peaks(grid: PlanGrid, state: PlanState) -> np.ndarray:
     return peak_speed(v0, v1, grid.accel_mm_s2 * r * r, grid.length_mm, grid.vcap_mm_s * r)
 
 
+def _at_rest(given_up, out, tol, evaluator, st: SlowdownSettings) -> int:
+    """How many of the ``given_up`` samples standing still would not cure (loop.room_at_rest)."""
+    if given_up.size == 0:
+        return 0
+    viol_tol = tol if np.ndim(tol) == 0 else np.asarray(tol)[given_up]
+    room, _ = room_at_rest(out, given_up, viol_tol, evaluator.rest_uncertainty(), st.aim,
+                           st.budget_share > 0.0 and evaluator.z > 0.0)
+    return int(np.count_nonzero(room <= 0.0))
+
+
 def plan_slowdown(path, limits: PlannerLimits, evaluator, *, ts_s: float,
                   settings: SlowdownSettings | None = None) -> SlowdownResult:
     """Slow the firmware's plan down locally until the evaluator's chance bound holds on
@@ -236,6 +246,9 @@ def plan_slowdown(path, limits: PlannerLimits, evaluator, *, ts_s: float,
         "evaluations": state.evaluations + sum(g["evaluations"] for g in group_stats),
         "samples_evaluated": state.evaluated + sum(g["samples_evaluated"] for g in group_stats),
         "relaxed_samples": int(given_up.size),
+        # of those, the ones standing still would not cure (run at the firmware's speed);
+        # the rest run at the floor, where the twin still expects less error than at speed
+        "relaxed_at_rest_samples": _at_rest(given_up, out, tol, evaluator, st),
         # samples over their bound that the stringency's budget carries (slowdown.budget)
         "budget_samples": int(over.size - given_up.size),
         # under the twin's Gaussian prediction: the expected share of the constrained

@@ -24,6 +24,26 @@ if TYPE_CHECKING:
 ROUND_BUDGET = 0.9
 
 
+def room_at_rest(out: dict, viol: np.ndarray, viol_tol, u0: float, aim: float,
+                 budgeted: bool):
+    """(room, moving) of violations ``viol``, mm: what the bound (``aim`` of E_max
+    ``viol_tol``) leaves once the motion stops — ≤ 0: standing still would not cure the
+    sample — and what its motion takes now. The motion's own uncertainty shrinks with it:
+    only the evaluator's uncertainty at rest ``u0`` stays (zσ lies below the chord u₀ +
+    g·(zσ − u₀) as the motion part of σ scales by g, so a step sized on it never
+    under-slows against the full zσ). ``budgeted``: a mean beyond E_max is first brought
+    within, since the stringency's budget may then carry the sample (slowdown.budget), and
+    slowing it for the whole bound at once over-slows what the budget carries."""
+    rest = out["rest"][viol]  # what no speed changes (a disturbance at rest; 0 for the twin)
+    room = aim * viol_tol - u0 - rest
+    moving = out["mot"][viol] + np.maximum(out["unc"][viol] - u0, 0.0) - rest
+    if budgeted:
+        hard = out["mot"][viol] > viol_tol
+        room = np.where(hard, aim * viol_tol - rest, room)
+        moving = np.where(hard, out["mot"][viol] - rest, moving)
+    return room, moving
+
+
 def optimize(state: PlanState, st: SlowdownSettings, relaxed: np.ndarray, *,
              grow: bool) -> dict:
     """Slow down, grow back (``grow``), and check on the whole plan (module docstring).
@@ -95,21 +115,8 @@ class _Loop:
         late = max(0, rnd - st.escalate_after + 1)
         widen = 2.0 ** min((late + 1) // 2, 3)
         cap = max(st.step[1] - 0.05 * late, 0.8) if late else st.step[1]
-        # the part of the error that no speed changes (a disturbance at rest: the plant's,
-        # for the oracle; 0 for the twin, whose offline error vanishes at rest)
-        rest = out["rest"][viol]
-        # the uncertainty of the motion shrinks with it: only the evaluator's uncertainty
-        # at rest (u0) stays; zσ lies below the chord u0 + g·(zσ − u0) as the motion part
-        # of σ scales by g, so the factor below never under-slows against the full zσ
-        u0 = state.ev.rest_uncertainty()
-        room = st.aim * self.viol_tol - u0 - rest
-        moving = out["mot"][viol] + np.maximum(out["unc"][viol] - u0, 0.0) - rest
-        if self.budgeted:
-            # a mean beyond E_max is first brought within (the budget may then carry the
-            # sample): slowing it for the whole bound at once over-slows what it carries
-            hard = out["mot"][viol] > self.viol_tol
-            room = np.where(hard, st.aim * self.viol_tol - rest, room)
-            moving = np.where(hard, out["mot"][viol] - rest, moving)
+        room, moving = room_at_rest(out, viol, self.viol_tol, state.ev.rest_uncertainty(),
+                                    st.aim, self.budgeted)
         f = np.clip((np.maximum(room, 0.0) / np.maximum(moving, 1e-12)) ** st.exponent,
                     st.step[0], cap)
         scale = state.scale
