@@ -293,6 +293,16 @@ def test_a_plan_the_twin_expects_to_fall_short_of_the_stringency_says_so():
                                 SimpleNamespace(stringency=0.95), 0.002)
     assert ("(2000 run at the slowest speed it may choose, 692 at the firmware's speed, "
             "where standing still would not help)") in both
+    # where the uncertainty at rest takes most of the tolerance, it is named as the cause
+    # (tests/foreign seed 411 at E_max 0.02 mm: 16.4 µm of the 20 from σ_ε = 0.01 mm)
+    assert "profile FRFs measured with little noise" in note  # no figures: the FRFs' advice
+    tight = dict(info, rest_uncertainty_mm=0.016449, tolerance_mm=0.02)
+    said = _short_of_stringency(tight, SimpleNamespace(stringency=0.95), 0.002)
+    assert "16.4 µm of the 20 µm" in said and "twin.sigma_eps_mm" in said
+    assert "profile FRFs measured" not in said
+    loose = dict(tight, tolerance_mm=0.1)
+    assert "profile FRFs measured" in _short_of_stringency(loose, SimpleNamespace(stringency=0.95),
+                                                           0.002)
     edge = dict(info, predicted_within_fraction=0.98999914, relaxed_samples=685)
     assert _short_of_stringency(edge, SimpleNamespace(stringency=0.99), 0.002) is None
     short = dict(edge, predicted_within_fraction=0.985)

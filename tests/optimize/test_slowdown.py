@@ -183,6 +183,11 @@ def test_plan_keeps_the_stringency_as_the_whole_file_twin_predicts(ender, benchy
     assert strict.info["relaxed_samples"] == strict.info["budget_samples"] == 0
     assert res.info["budget_samples"] > 0
     assert res.s_mm.size < strict.s_mm.size
+    # what no speed changes is reported: zσ at rest is at least z·σ_ε (the prior noise
+    # level), and what the report's note names where it takes most of the tolerance
+    u0 = res.info["rest_uncertainty_mm"]
+    assert u0 == pytest.approx(ev.rest_uncertainty())
+    assert u0 >= norm.ppf(0.95) * ender.twin.sigma_eps_mm * (1 - 1e-9)
 
 
 def test_provisional_rounds_give_the_plan_of_exact_rounds(ender, benchy):

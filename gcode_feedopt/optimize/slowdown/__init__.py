@@ -249,6 +249,8 @@ def plan_slowdown(path, limits: PlannerLimits, evaluator, *, ts_s: float,
         # of those, the ones standing still would not cure (run at the firmware's speed);
         # the rest run at the floor, where the twin still expects less error than at speed
         "relaxed_at_rest_samples": _at_rest(given_up, out, tol, evaluator, st),
+        # zσ of a machine standing still, mm: what no speed changes (the noise level, a bias)
+        "rest_uncertainty_mm": float(evaluator.rest_uncertainty()),
         # samples over their bound that the stringency's budget carries (slowdown.budget)
         "budget_samples": int(over.size - given_up.size),
         # under the twin's Gaussian prediction: the expected share of the constrained
