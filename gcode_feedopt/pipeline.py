@@ -442,7 +442,8 @@ def _report(run: _Run) -> Report:
                **({"executed": run.executed} if run.executed is not None else {}),
                **{k: info[k] for k in ("optimizer", "window_status", "fallback_windows",
                                         "relaxed_windows", "relaxed_samples",
-                                        "relaxed_at_rest_samples", "budget_samples",
+                                        "relaxed_at_rest_samples", "rest_uncertainty_mm",
+                                        "budget_samples",
                                         "rounds", "whole_file_checks", "samples_evaluated",
                                         "slowed_length_fraction", "predicted_rms_gamma_mm",
                                         "compute_s", "solver_s", "accel_chosen_mm_s2")

@@ -39,6 +39,7 @@ def test_report_has_the_promised_keys_and_output_is_not_slower(src, tmp_path):
     assert d["method"] == "pidd"  # the default: the digital twin keeps the tolerance
     # every sample within its bound or carried by the stringency's budget (optimize.slowdown.budget)
     assert d["extra"]["relaxed_samples"] == 0
+    assert d["extra"]["rest_uncertainty_mm"] > 0  # zσ at rest: the note's cause (pipeline)
     assert d["predicted_within_fraction"] >= d["stringency"]
     assert not any(n.startswith("the twin expects only") for n in d["notes"])
     assert d["extra"]["optimizer"] == "slowdown"
