@@ -789,7 +789,9 @@ def fit_modal(freq_hz, response, *, n_modes: int | None = None, init: ModalModel
         else:  # the set's fit has real poles: the member may too
             model, rms = _solve(f, h, wts, start, fit_dc, in_band=model.freq_hz[0] >= f[0],
                                 zeta_max=ZETA_MAX_REAL)
-        if model.slowest_pole_hz < f[0] <= init.slowest_pole_hz * (1 + HELD):
+        # the band is the floor of the slow poles where the set's fit keeps them in it
+        floor = f[0] if f[0] <= init.slowest_pole_hz * (1 + HELD) else None
+        if floor is not None and model.slowest_pole_hz < floor:
             # The same below the band by another way: a pair whose natural frequency stayed
             # in the band but whose damping went past 1 puts its slower real pole below it.
             # On a servo measured from 1 Hz in 2 Hz steps, 2.7 % noise (tests/foreign, seed
@@ -805,7 +807,6 @@ def fit_modal(freq_hz, response, *, n_modes: int | None = None, init: ModalModel
             # ``_widen`` held at f₀ counts as in the band: on seed 164 (y, band from 5 Hz)
             # three of eight members went on from it to 0.4–0.7 Hz.
             model, rms = _solve(f, h, wts, start, fit_dc, in_band=True)
-        floor = f[0] if f[0] <= init.slowest_pole_hz * (1 + HELD) else None
         model, rms = _silence_unresolved(f, h, wts, model, rms, fit_dc, floor)
     else:
         model, rms = None, np.inf

@@ -90,7 +90,7 @@ from .. import parallel
 from .budget import expected_share, left_over
 from .grid import PlanGrid
 from .groups import plan_in_groups
-from .loop import optimize, room_at_rest
+from .loop import budgeted, optimize, room_at_rest
 from .state import PlanState
 
 
@@ -206,7 +206,7 @@ def _at_rest(given_up, out, tol, evaluator, st: SlowdownSettings) -> int:
         return 0
     viol_tol = tol if np.ndim(tol) == 0 else np.asarray(tol)[given_up]
     room, _ = room_at_rest(out, given_up, viol_tol, evaluator.rest_uncertainty(), st.aim,
-                           st.budget_share > 0.0 and evaluator.z > 0.0)
+                           budgeted(st, evaluator))
     return int(np.count_nonzero(room <= 0.0))
 
 

@@ -24,6 +24,12 @@ if TYPE_CHECKING:
 ROUND_BUDGET = 0.9
 
 
+def budgeted(st: SlowdownSettings, evaluator) -> bool:
+    """Whether the stringency is a share of samples within (slowdown.budget); the oracle, with
+    no uncertainty, has nothing to carry: its bound is its mean."""
+    return st.budget_share > 0.0 and evaluator.z > 0.0
+
+
 def room_at_rest(out: dict, viol: np.ndarray, viol_tol, u0: float, aim: float,
                  budgeted: bool):
     """(room, moving) of violations ``viol``, mm: what the bound (``aim`` of E_max
@@ -68,9 +74,7 @@ class _Loop:
         self.stats = {"rounds": 0, "whole_file_checks": 0}
         #: E_max of the violations :meth:`violations` found last
         self.viol_tol = None
-        #: the stringency as the share of samples within (slowdown.budget; the oracle, with
-        #: no uncertainty, has nothing to carry: its bound is its mean)
-        self.budgeted = st.budget_share > 0.0 and state.ev.z > 0.0
+        self.budgeted = budgeted(st, state.ev)
 
     def violations(self, exact=False):
         s, out, mean, starts = self.state.evaluate(exact)
