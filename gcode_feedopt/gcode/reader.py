@@ -338,11 +338,9 @@ def _tokenize(text: str, name: str, i: int, events: list, n_moves: int):
 READ_MCODES = {82, 83, 201, 203, 204, 205, 220, 221, 593}
 
 
-def _m_number(m: str) -> int | None:
-    try:
-        return int(float(m))
-    except ValueError:
-        return None
+def _m_number(m: str) -> int:
+    """An M word's number: ``_words`` gives only decimal values ("M204.0" is M204)."""
+    return int(float(m))
 
 
 def _first_repeat(words) -> str:
@@ -520,7 +518,7 @@ class _Reader:
             return motion
         events, n_moves = self.events, len(self.moves)
         for m in mcodes:
-            mv = int(float(m))
+            mv = _m_number(m)
             if mv == 82:
                 self.st.e_rel_m83 = False
                 self.st.e_mode_explicit = False
