@@ -1,8 +1,10 @@
 """Encoder logs: the CSV the virtual machine writes and the closed loop reads.
 
 Format: a header line naming ``t,x_cmd,y_cmd,x,y`` and optionally any of ``z_cmd,z,e_cmd``,
-in any order (``write_log`` writes them in that order), then one row per sample period Ts; seconds and millimetres, plain decimals (6 places: 1 nm,
-1 µs). ``x_cmd``.. are the commanded positions, ``x``.. the measured ones.
+in any order (``write_log`` writes them in that order), then one row per sample period Ts;
+seconds and millimetres, plain decimals (6 places: 1 nm, 1 µs). ``x_cmd``.. are the commanded
+positions, ``x``.. the measured ones. A log whose times jitter, or that lost a sample or two,
+is read on a uniform grid (``_on_uniform_grid``, with a ``LogWarning``).
 
 Writing millions of rows with ``np.savetxt`` takes tens of seconds (one Python ``%`` per
 value); ``write_log`` formats a whole block of rows at once with integer arithmetic on a byte
@@ -14,11 +16,12 @@ from __future__ import annotations
 
 import difflib
 import os
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import LogError
+from ..errors import LogError, LogWarning
 from ..outputs import output_file
 from .trajectory import Trajectory
 
@@ -28,8 +31,12 @@ DECIMALS = 6
 #: Rows formatted per block (8 columns: a ~10 MB byte matrix; measured faster than 1 << 19).
 _BLOCK_ROWS = 1 << 16
 #: Sample times may deviate from a uniform grid by this fraction of Ts (float round-off of
-#: a printed 6-decimal time), beyond which a log is refused as resampled or truncated.
+#: a printed 6-decimal time) and the rows are read as they are.
 TS_JITTER = 1e-3
+#: Beyond that, a log's steps may lie between JITTER_MIN and GAP_MAX times its median step
+#: (jitter; a sample or two dropped): it is read on a uniform grid (``_on_uniform_grid``).
+JITTER_MIN = 0.5
+GAP_MAX = 3.5
 
 
 @dataclass(frozen=True)
@@ -193,14 +200,92 @@ def read_log(path) -> EncoderLog:
     dt = np.diff(t)
     ts = (t[-1] - t[0]) / (n_rows - 1)
     if ts <= 0 or np.any(np.abs(dt - ts) > TS_JITTER * ts + 10.0 ** -DECIMALS):
-        bad = int(np.argmax(np.abs(dt - ts))) if ts > 0 else 0
-        raise LogError(f"{name}:{bad + 3}: time step {dt[bad]:.6g} s differs from the log's mean "
-                       f"Ts={ts:.6g} s; a log has one row per Ts, uniformly (gaps or resampling?)")
+        data = _on_uniform_grid(name, data, columns.index("t"),
+                                [columns.index(c) for c in ("x_cmd", "y_cmd")])
+        t = data[:, columns.index("t")]
     col = {c: data[:, i] for i, c in enumerate(columns)}
-    zeros = np.zeros(n_rows)
+    zeros = np.zeros(data.shape[0])
     cmd = np.column_stack([col["x_cmd"], col["y_cmd"], col.get("z_cmd", zeros)])
     pos = np.column_stack([col["x"], col["y"], col.get("z", zeros)])
     return EncoderLog(t_s=t, cmd_mm=cmd, pos_mm=pos, e_cmd_mm=col.get("e_cmd"), columns=columns)
+
+
+def _on_uniform_grid(name: str, data: np.ndarray, it: int, icmd: list) -> np.ndarray:
+    """The rows ``data`` (K, C) of a log whose times (column ``it``) are not uniform, on the
+    uniform grid t₀ + k·Ts (Ts: the slope of the times against each row's place on the grid,
+    to 1 µs), every column linearly interpolated there from the clock the commands (columns
+    ``icmd``) run smoothly in (``_stamps_are_sample_times``); a ``LogWarning`` says which. A
+    logger polled by a host has jitter, and a busy one drops a sample now and then; values
+    taken at the stamped times but read as uniform rows err by v·δt (150 mm/s × 0.2 ms:
+    30 µm), stamps of a timer's samples read as sample times err as much the other way.
+
+    Refused (``LogError`` naming the row): a time that does not increase, a step below
+    ``JITTER_MIN``·Ts (two clocks interleaved, or a resampled log), and a gap above
+    ``GAP_MAX``·Ts (lost motion: no interpolation recovers a mode's swing across it)."""
+    t, cmd = data[:, it], data[:, icmd]
+    dt = np.diff(t)
+    back = np.flatnonzero(dt <= 0)
+    if back.size:
+        r = int(back[0])
+        raise LogError(f"{name}:{r + 3}: time {t[r + 1]:.6g} s does not follow {t[r]:.6g} s on "
+                       f"the row before; a log's t increases row by row (sort the file, or "
+                       f"drop repeated rows)")
+    ts = float(np.median(dt))
+    if round(ts, DECIMALS) <= 0:
+        raise LogError(f"{name}: the time steps' median is {ts:.3g} s: t is "
+                       f"written with too few decimals (write seconds to 1 µs)")
+    short = np.flatnonzero(dt < JITTER_MIN * ts)
+    if short.size:
+        r = int(short[0])
+        raise LogError(f"{name}:{r + 3}: time step {dt[r]:.6g} s, the log's usual step is "
+                       f"{ts:.6g} s; a log has one row per sample period (two loggers "
+                       f"interleaved, or rows resampled?)")
+    # each row's place on the grid (step by step: a lost sample is a step of two), then the
+    # period as the slope through all of them: the median of jittered steps is off by
+    # ~σ/√K, which adds up to whole samples over a long log
+    n = np.concatenate(([0.0], np.cumsum(np.maximum(np.round(dt / ts), 1.0))))
+    ts = round(float(np.polyfit(n, t, 1)[0]), DECIMALS)
+    gaps = np.flatnonzero(dt > GAP_MAX * ts)
+    if gaps.size:
+        r = int(gaps[0])
+        raise LogError(f"{name}:{r + 3}: a gap of {dt[r] * 1e3:.4g} ms after t={t[r]:.6g} s "
+                       f"(the log's step is {ts * 1e3:.4g} ms): samples were lost there; "
+                       f"split the file at that row: each piece is a usable log")
+    placed = t[0] + n * ts
+    at_times = _stamps_are_sample_times(t, placed, cmd)
+    k = int(round(n[-1])) + 1
+    grid = t[0] + np.arange(k) * ts
+    src = t if at_times else placed
+    out = np.column_stack([grid if j == it else np.interp(grid, src, data[:, j])
+                           for j in range(data.shape[1])])
+    off = np.abs(t - placed)
+    lost = int(n[-1]) - (t.size - 1)
+    how = ("every column interpolated on that grid at the logged times (the commands run "
+           "smoothly in them)" if at_times else
+           "the rows taken as that grid's samples (the commands run smoothly row by row, not "
+           "in the logged times: the times are stamps of uniform samples)"
+           + (", the missing ones interpolated" if lost else ""))
+    warnings.warn(f"{name}: sample times are not uniform (steps {dt.min() * 1e3:.4g}–"
+                  f"{dt.max() * 1e3:.4g} ms, up to {off.max() * 1e3:.3g} ms off a "
+                  f"{ts * 1e3:.4g} ms grid" + (f", {lost} sample(s) missing" if lost else "")
+                  + f"): {how}", LogWarning, stacklevel=3)
+    return out
+
+
+def _stamps_are_sample_times(t: np.ndarray, placed: np.ndarray, cmd: np.ndarray) -> bool:
+    """Whether the commanded positions ``cmd`` (K, c) were sampled at the logged times ``t``
+    (a logger that polls when it can) rather than on the uniform grid ``placed`` with late or
+    early stamps (a logger that stamps what a timer sampled). A planner's command is smooth in
+    its true time: each interior sample is predicted from its two neighbours by linear
+    interpolation in either clock, and the clock with the smaller squared misfit wins (ties,
+    e.g. a log that never moves, keep the logged times)."""
+    def misfit(tt):
+        w = (tt[1:-1] - tt[:-2]) / (tt[2:] - tt[:-2])
+        mid = cmd[:-2] + w[:, None] * (cmd[2:] - cmd[:-2])
+        return float(np.sum((cmd[1:-1] - mid) ** 2))
+    if t.size < 3:
+        return True
+    return misfit(t) <= misfit(placed)
 
 
 def _raise_bad_row(name: str, text: bytes, n_cols: int):
