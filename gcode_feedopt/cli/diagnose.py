@@ -40,7 +40,7 @@ def diagnose(log_path, machine, json_path, plot_path, fit_fraction, out_profile,
     gcode-feedopt diagnose -m ender3pro part.csv -o extended.yaml   (then optimize -m extended.yaml)
     """
     # heavy stages imported on use: `gcode-feedopt --help` imports every command module
-    from ..closedloop.diagnose import diagnose_log
+    from ..closedloop.diagnose import diagnose_log, leftover_sentence
     from ..closedloop.logs import load_log
 
     profile = load_profile(machine)
@@ -69,6 +69,9 @@ def diagnose(log_path, machine, json_path, plot_path, fit_fraction, out_profile,
             tp = ", ".join(f"{k}={v:.5g}" for k, v in tie["params"].items() if isinstance(v, float))
             say(f"              tie: {tie['kind']} ({tp}) explains the held-out part as "
                        "well; the two are not told apart by this log")
+    for ax in ("x", "y"):
+        if d.leftover[ax]["significant"]:
+            say(f"left over     {leftover_sentence(ax, d.leftover[ax])}")
     for ax in ("x", "y"):
         line = (f"held-out RMS  {ax}: {ho['before'][ax] * 1e3:.2f} -> {ho['after'][ax] * 1e3:.2f} µm "
                 "(the extended profile)")

@@ -145,6 +145,9 @@ class Diagnosis:
     spectrum: dict
     fit_samples: int
     warmup_samples: int = 0
+    #: axis -> what the model with the named effects and the plant draw leaves on the
+    #: held-out part (``leftover``)
+    leftover: dict = field(default_factory=dict)
     residual_mm: np.ndarray = field(repr=False, default=None)  # (K, 2) before
     corrected_mm: np.ndarray = field(repr=False, default=None)  # (K, 2) after (whole log)
     named: list = field(repr=False, default_factory=list)  # accepted Candidates
@@ -155,6 +158,7 @@ class Diagnosis:
                 "candidates": [c.to_dict() for c in self.candidates],
                 "relations": self.relations, "spectrum": self.spectrum,
                 "fit_samples": self.fit_samples, "warmup_samples": self.warmup_samples,
+                "leftover": self.leftover,
                 "test": {"alpha": ALPHA, "draw_quantile": DRAW_QUANTILE,
                          "min_explained": MIN_EXPLAINED, "min_effect_rms_mm": MIN_EFFECT_RMS_MM}}
 
@@ -328,6 +332,54 @@ def _relations(ax, r, cmd, pred, ts_s):
             "lag_s": float(-np.sum(r * v) / np.sum(v * v)) if np.any(v) else 0.0}
 
 
+#: below this frequency, Hz, a leftover is slow (a drift: ``leftover``)
+SLOW_HZ = 1.0
+
+
+def leftover(r: np.ndarray, ts_s: float, mode_hz: float | None = None) -> dict:
+    """What the model leaves on the held-out part ``r`` (measured − the twin with the named
+    effects and the plant draw), against the sensor's noise there (``noise_floor_mm``: white
+    noise is all a perfect model leaves). ``excess_mm`` = √(RMS² − σ²), the part that is
+    not noise; ``significant`` when it is at least σ and ``MIN_EFFECT_RMS_MM`` (the RMS is
+    then √2 σ or more: on 60 clean logs of 20 drawn non-corexy foreign machines whose twins
+    match them, RMS/σ stayed ≤ 1.40, docs/diagnose.md). Its character: ``slow_share``, the share
+    of its power below ``SLOW_HZ`` (a drift: thermal growth, a creeping sensor), and the
+    largest spectral peak above it (``peak_hz``, ``peak_mm``), beside the profile's
+    dominant mode ``mode_hz`` (what is left excites it, or the mode is not where the profile
+    puts it: the sentence states the fact, not a cause)."""
+    r = np.asarray(r, float)
+    rms = _rms(r)
+    sigma = noise_floor_mm(r)
+    excess = math.sqrt(max(rms * rms - sigma * sigma, 0.0))
+    P = np.abs(np.fft.rfft(r)) ** 2
+    f = np.fft.rfftfreq(r.size, ts_s)
+    slow = float(P[f < SLOW_HZ].sum() / P.sum()) if P.sum() > 0 else 0.0
+    peak = _spectrum(r, ts_s, n_peaks=1) if r.size > 8 else []
+    return {"rms_mm": rms, "noise_mm": sigma, "excess_mm": excess,
+            "significant": bool(excess >= max(sigma, MIN_EFFECT_RMS_MM)),
+            "slow_share": slow,
+            "peak_hz": peak[0]["frequency_hz"] if peak else None,
+            "peak_mm": peak[0]["amplitude_mm"] if peak else None,
+            "mode_hz": None if mode_hz is None else float(mode_hz)}
+
+
+def leftover_sentence(ax: str, lo: dict) -> str:
+    """One line for the CLI on a significant ``leftover``."""
+    head = (f"{ax}: {lo['rms_mm'] * 1e3:.2f} µm RMS on the held-out part where the sensor's "
+            f"noise is {lo['noise_mm'] * 1e3:.2f} µm: {lo['excess_mm'] * 1e3:.2f} µm no "
+            f"named effect explains")
+    if lo["slow_share"] >= 0.5:
+        return (head + f"; {100 * lo['slow_share']:.0f} % of it below {SLOW_HZ:g} Hz: a drift "
+                "(thermal growth, a sensor that creeps, a belt slipping)?")
+    if lo["peak_hz"] is None:
+        return head
+    out = head + f"; its largest part at {lo['peak_hz']:.1f} Hz ({lo['peak_mm'] * 1e3:.2f} µm)"
+    m = lo.get("mode_hz")
+    if m and abs(lo["peak_hz"] - m) <= 0.3 * m:
+        out += f", near the profile's {m:.1f} Hz mode (the mode rings with what is left)"
+    return out
+
+
 def _spectrum(r, ts_s, n_peaks=3):
     n = r.size
     R = np.abs(np.fft.rfft((r - r.mean()) * np.hanning(n))) * 4.0 / n
@@ -418,6 +470,7 @@ def diagnose_arrays(cmd_mm: np.ndarray, meas_mm: np.ndarray, ts_s: float, impuls
         effects = [{"kind": "none", "axis": worst, "params": {},
                     "confidence": float(1.0 - max(top.fraction, 0.0) if top else 1.0)}]
     full_rms = {ax: _rms(resid0[ax][w0:]) for ax in AXES}
+    left = {ax: leftover(base[ax].resid[hold_idx], ts_s, phys[ax].mode_hz) for ax in AXES}
     return Diagnosis(
         residual_rms_mm=full_rms, effects=effects,
         holdout_rms_mm={"before": before, "after": after,
@@ -426,7 +479,7 @@ def diagnose_arrays(cmd_mm: np.ndarray, meas_mm: np.ndarray, ts_s: float, impuls
         relations={ax: _relations(ax, resid0[ax][w0:], {a: cmd[a][w0:] for a in AXES}, None, ts_s)
                    for ax in AXES},
         spectrum={ax: _spectrum(resid0[ax][w0:], ts_s) for ax in AXES}, fit_samples=nfit,
-        warmup_samples=w0,
+        warmup_samples=w0, leftover=left,
         residual_mm=np.column_stack([resid0[ax] for ax in AXES]),
         corrected_mm=np.column_stack([base[ax].resid for ax in AXES]), named=named)
 

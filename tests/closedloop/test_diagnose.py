@@ -11,7 +11,7 @@ simulated elsewhere) is in test_diagnose_bench_a.py.
 import numpy as np
 import pytest
 
-from gcode_feedopt.closedloop.diagnose import KINDS, diagnose_arrays
+from gcode_feedopt.closedloop.diagnose import KINDS, diagnose_arrays, leftover
 from gcode_feedopt.twin.physics import axis_physics
 from gcode_feedopt.closedloop.motion import point_to_point
 from gcode_feedopt.profile import load_profile
@@ -143,3 +143,25 @@ def test_a_steppers_electrical_cycle_is_named(wavelength_mm):
     assert abs(e["params"]["wavelength_mm"] - wavelength_mm) <= 0.005 * wavelength_mm
     assert abs(e["params"]["amplitude_mm"] - 0.005) <= 0.1 * 0.005
     assert d.holdout_rms_mm["after"]["x"] <= 1.1 * NOISE_MM
+
+
+def test_leftover_against_closed_forms():
+    """White noise σ leaves σ and nothing significant; a 40 Hz sinusoid of amplitude A on it
+    leaves A/√2 beyond the noise, its peak at 40 Hz near a 38 Hz mode; a ramp is slow."""
+    rng = np.random.default_rng(5)
+    ts, K, sigma = 0.002, 6000, 0.0007
+    t = np.arange(K) * ts
+    noise = rng.normal(0.0, sigma, K)
+    lo = leftover(noise, ts, 38.0)
+    assert lo["noise_mm"] == pytest.approx(sigma, rel=0.05)
+    assert lo["rms_mm"] == pytest.approx(sigma, rel=0.05) and not lo["significant"]
+    A = 0.003
+    lo = leftover(noise + A * np.sin(2 * np.pi * 40.0 * t), ts, 38.0)
+    assert lo["significant"] and lo["excess_mm"] == pytest.approx(A / np.sqrt(2), rel=0.05)
+    assert lo["peak_hz"] == pytest.approx(40.0, abs=0.5) and lo["slow_share"] < 0.01
+    assert lo["peak_mm"] == pytest.approx(A, rel=0.1)
+    lo = leftover(noise + 0.005 * t / t[-1], ts)
+    assert lo["significant"] and lo["slow_share"] > 0.9
+    # below the relevance floor (1 µm) nothing is significant, however clean the sensor
+    lo = leftover(rng.normal(0.0, 1e-5, K) + 0.0008 * np.sin(2 * np.pi * 40.0 * t), ts)
+    assert not lo["significant"]
