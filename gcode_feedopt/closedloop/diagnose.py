@@ -145,8 +145,8 @@ class Diagnosis:
     spectrum: dict
     fit_samples: int
     warmup_samples: int = 0
-    #: axis -> what the model with the named effects and the plant draw leaves on the
-    #: held-out part (``leftover``)
+    #: axis -> what the model with the named effects and the known uncertainty's bar leaves
+    #: on the held-out part (``leftover``)
     leftover: dict = field(default_factory=dict)
     residual_mm: np.ndarray = field(repr=False, default=None)  # (K, 2) before
     corrected_mm: np.ndarray = field(repr=False, default=None)  # (K, 2) after (whole log)
@@ -347,11 +347,12 @@ def leftover(r: np.ndarray, ts_s: float, mode_hz: float | None = None) -> dict:
     noise is all a perfect model leaves). ``excess_mm`` = √(RMS² − σ²), the part that is
     not noise; ``significant`` when it is at least ``LEFTOVER_EXCESS``·σ and
     ``MIN_EFFECT_RMS_MM`` (an RMS of 1.8 σ or more: on 81 clean logs of 27 drawn non-corexy
-    foreign machines whose twins match them, RMS/σ stayed ≤ 1.40, docs/diagnose.md). Its character: ``slow_share``, the share
-    of its power below ``SLOW_HZ`` (a drift: thermal growth, a creeping sensor), and the
-    largest spectral peak above it (``peak_hz``, ``peak_mm``), beside the profile's
-    dominant mode ``mode_hz`` (what is left excites it, or the mode is not where the profile
-    puts it: the sentence states the fact, not a cause)."""
+    foreign machines whose twins match them, RMS/σ stayed ≤ 1.40, docs/diagnose.md). Its
+    character: ``slow_share``, the share of its power below ``SLOW_HZ`` (a drift: thermal
+    growth, a creeping sensor), and the largest spectral peak above it (``peak_hz``,
+    ``peak_mm``), beside the profile's dominant mode ``mode_hz`` (what is left excites it,
+    or the mode is not where the profile puts it: the sentence states the fact, not a
+    cause)."""
     r = np.asarray(r, float)
     rms = _rms(r)
     sigma = noise_floor_mm(r)
