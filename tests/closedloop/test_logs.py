@@ -484,8 +484,9 @@ def test_bench_a_log_with_jittered_times_is_diagnosed_as_written(bench_a, tmp_pa
     of jitter on its 2 ms, 20 samples dropped; the values either taken at those times (a
     cubic spline through the log) or left on the grid with late/early stamps. Read on the
     grid (one warning saying which clock it trusted), it is diagnosed as the log itself: the
-    fan on y, frequency and amplitude within 5 % of the labels. Taken as uniform rows, the
-    stamps' clock errs by 24 µm RMS on x (checked by hand: `diagnose` then finds nothing)."""
+    fan on y, frequency and amplitude within 5 % of the labels. Read in the other clock
+    (interpolated at its stamps), the stamps' version errs by 24 µm RMS on x (checked by
+    hand: `diagnose` then finds nothing)."""
     import warnings
 
     from scipy.interpolate import CubicSpline
