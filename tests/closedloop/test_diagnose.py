@@ -11,6 +11,7 @@ simulated elsewhere) is in test_diagnose_bench_a.py.
 import numpy as np
 import pytest
 
+from gcode_feedopt.closedloop.catalogue import sincos_rss
 from gcode_feedopt.closedloop.diagnose import KINDS, diagnose_arrays, leftover
 from gcode_feedopt.twin.physics import axis_physics
 from gcode_feedopt.closedloop.motion import point_to_point
@@ -165,3 +166,22 @@ def test_leftover_against_closed_forms():
     # below the relevance floor (1 µm) nothing is significant, however clean the sensor
     lo = leftover(rng.normal(0.0, 1e-5, K) + 0.0008 * np.sin(2 * np.pi * 40.0 * t), ts)
     assert not lo["significant"]
+
+
+def test_sincos_rss_is_the_least_squares_fit():
+    """The closed form periodic_time ranks its peaks by equals lstsq of [sin, cos] at every
+    frequency, on uniform times and on uneven ones (a position as the phase), and a sinusoid
+    in the residual leaves only the noise at its own frequency."""
+    rng = np.random.default_rng(11)
+    K = 1500
+    for u in (np.arange(K) * 0.002, np.cumsum(rng.uniform(0.0, 0.3, K))):
+        r = rng.normal(0.0, 1.0, K) + 3.0 * np.sin(2 * np.pi * 7.3 * u + 0.4)
+        freqs = np.array([0.5, 7.3, 11.0, 30.0])
+        want = []
+        for f in freqs:
+            G = np.column_stack([np.sin(2 * np.pi * f * u), np.cos(2 * np.pi * f * u)])
+            e = r - G @ np.linalg.lstsq(G, r, rcond=None)[0]
+            want.append(e @ e)
+        got = sincos_rss(r, u, freqs)
+        np.testing.assert_allclose(got, want, rtol=1e-9)
+        assert np.argmin(got) == 1 and got[1] / K == pytest.approx(1.0, rel=0.1)
