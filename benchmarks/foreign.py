@@ -9,6 +9,7 @@ prior prediction vs "actual = command", coverage of the 95 % interval without / 
     python benchmarks/foreign.py                 # seeds 0–7, ~1 min each on 2 cores
     python benchmarks/foreign.py --seeds 3 5 --kind servo_screw --keep /tmp/foreign
     python benchmarks/foreign.py --seeds 60 61 --shaper mzv [--causal] [--unstated]
+    python benchmarks/foreign.py --seeds 0 1 2 3 4 5 --measurements 1   # one FRF per axis
 
 ``--shaper``: the machines print through an input shaper at their dominant modes (Klipper's
 centred pulses; ``--causal``: Marlin's), measured without it (the FRFs); the profile states it
@@ -18,6 +19,7 @@ in ``firmware.input_shaper`` as its owner would, unless ``--unstated``.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import pathlib
 import sys
 import tempfile
@@ -32,8 +34,6 @@ from tests.foreign.machines import KINDS, make_machine, with_shaper, write_datas
 
 def stated(prof, mach):
     """``prof`` with the foreign machine's input shapers stated in firmware.input_shaper."""
-    import dataclasses
-
     from gcode_feedopt.firmware.shaper import Shaper
     sh = {a: Shaper.from_dict(c) for a, c in mach.shapers.items()}
     return dataclasses.replace(prof, firmware=dataclasses.replace(prof.firmware, input_shaper=sh))
@@ -51,12 +51,16 @@ def main():
     ap.add_argument("--causal", action="store_true", help="the shaper's pulses causal (Marlin)")
     ap.add_argument("--unstated", action="store_true",
                     help="the profile does not state the shaper")
+    ap.add_argument("--measurements", type=int, default=None,
+                    help="FRFs per axis (default: the machine's own draw, 3–8)")
     args = ap.parse_args()
     warnings.simplefilter("ignore")
     base = args.keep or pathlib.Path(tempfile.mkdtemp(prefix="foreign-"))
     summary = []
     for seed in args.seeds:
         mach = make_machine(seed, args.kind)
+        if args.measurements:
+            mach = dataclasses.replace(mach, n_meas=args.measurements)
         if args.shaper:
             mach = with_shaper(mach, args.shaper, centred=not args.causal)
         out = base / f"foreign-{seed}"

@@ -880,6 +880,10 @@ DC_WARN = 0.01
 #: 50 foreign machines (seeds 0–67): 0.88–1.21 times, at most 3.1 % where the noise is 3 %).
 SET_MISFIT_RATIO = 3.0
 SET_MISFIT_FLOOR = 0.02
+#: Fewer measurements than this of an axis cannot tell how the machine varies (one gives no
+#: spread, two one direction of it): the twin blends in a typical machine's spread
+#: (``_with_prior_spread``) and a warning says so.
+MIN_SPREAD_MEASUREMENTS = 3
 
 
 def bin_noise(freq_hz, response) -> float:
@@ -954,6 +958,13 @@ def fit_axis(freq_hz, response, labels=(), *, axis: str = "", dc_gain: float | N
             warn.append(f"{lab}: the modal fit misses this FRF by {100 * ft.rms_rel:.1f} % RMS "
                         f"(worst at {ft.worst_hz:.1f} Hz) where the set's median is "
                         f"{100 * med:.1f} %; a bad or inconsistent measurement")
+    if R.shape[0] < MIN_SPREAD_MEASUREMENTS:
+        warn.append(f"{labels[0]}: {R.shape[0]} measurement{'s' if R.shape[0] > 1 else ''} of "
+                    "this axis cannot tell how the machine varies from run to run (temperature, "
+                    "belt tension, excitation level); the twin assumes a typical machine's "
+                    f"spread (modes' frequencies ±{100 * PRIOR_SPREAD_FREQ:g} %, damping "
+                    f"±{100 * PRIOR_SPREAD_DAMPING:g} %); measure it {MIN_SPREAD_MEASUREMENTS} or "
+                    "more times (e.g. at three excitation levels) for its own")
     if R.shape[0] >= 3:
         dev = np.abs(R - med_resp[None, :]) / np.maximum(np.abs(med_resp), RELATIVE_FLOOR * abs(med_resp[0]))
         dist = np.sqrt(np.mean(dev ** 2, axis=1))
@@ -1083,6 +1094,68 @@ def noise_factor(model: ModalModel, cov: np.ndarray, ts_s: float, n_taps: int) -
 FD_STEP = 1e-5
 
 
+#: The spread a machine shows between measurements (temperature, belt tension, excitation
+#: level), as relative standard deviations of each mode's frequency and damping: what stands in
+#: for the spread when an axis has fewer than ``MIN_SPREAD_MEASUREMENTS`` FRFs. benchA's 6 + 6
+#: stepped sines (another project's machine): dominant modes 1.2 % and 1.9 %; the belt machines
+#: of tests/foreign (ours; 4–8 FRFs at three excitation levels): 0.6–2.8 % (median 1.4 %) and
+#: 0.7–10 % (median 2.5 %).
+PRIOR_SPREAD_FREQ = 0.015
+PRIOR_SPREAD_DAMPING = 0.03
+#: How many measurements' worth that spread counts against the members' own (the posterior
+#: mean of a covariance under an inverse-Wishart prior: (ν₀ Σ₀ + (N − 1) S) / (ν₀ + N − 1)).
+PRIOR_SPREAD_WEIGHT = 2.0
+
+
+def prior_spread_cov(model: ModalModel) -> np.ndarray:
+    """(p, p) covariance of ``model``'s packed parameters (``_pack``, DC pinned) a machine's
+    run-to-run spread gives: each mode's log frequency and log damping independent, of
+    PRIOR_SPREAD_FREQ and PRIOR_SPREAD_DAMPING; the residue's velocity term moves with the
+    damping (a mass on a spring and damper has b1 = 2ζω·b0, so b1/(2πf) ∝ ζ, whatever f
+    does); static shares and lag as measured. A silenced mode has none."""
+    m = model.n_modes
+    cov = np.zeros((4 * m + 1, 4 * m + 1))
+    c = model.b1_rad_s / (2 * np.pi * model.freq_hz)
+    for i in np.flatnonzero(~_silent(model)):
+        cov[i, i] = PRIOR_SPREAD_FREQ ** 2
+        j = np.array([m + i, 2 * m + i])           # log ζ_i, c_i
+        g = np.array([1.0, c[i]])
+        cov[np.ix_(j, j)] = PRIOR_SPREAD_DAMPING ** 2 * np.outer(g, g)
+    return cov
+
+
+def prior_spread_response_var(model: ModalModel, freq_hz) -> np.ndarray:
+    """(K,) E|ΔH(f)|² of ``model``'s response at ``freq_hz`` under ``prior_spread_cov``
+    (linear: the response's derivative along each principal direction, as ``noise_factor``)."""
+    cov = prior_spread_cov(model)
+    lam, V = np.linalg.eigh(cov)
+    f = np.asarray(freq_hz, float)
+    p0 = _pack(model, False)
+    h0 = _with_params(model, p0).response(f)
+    out = np.zeros(f.size)
+    for k in np.flatnonzero(lam > 1e-12 * max(float(lam.max()), 1e-300)):
+        d = (_with_params(model, p0 + FD_STEP * V[:, k]).response(f) - h0) / FD_STEP
+        out += lam[k] * np.abs(d) ** 2
+    return out
+
+
+def _with_prior_spread(models, L: np.ndarray, ts_s: float, n_taps: int) -> np.ndarray:
+    """The factor of (1 + 1/N)·Σ̂: the members' sample spread L (rank N − 1 < 2) blended with
+    the prior spread Σ₀ (each member's ``prior_spread_cov`` through its own Jacobian,
+    averaged), Σ̂ = (ν₀ Σ₀ + (N − 1) L Lᵀ) / (ν₀ + N − 1), ν₀ = PRIOR_SPREAD_WEIGHT; the
+    factor 1 + 1/N is the spread of one more draw about a mean taken from N draws (the plant
+    that prints is not the machine measured once). One FRF gives no spread and two give one
+    direction of it: a twin that took that for the machine's spread covered clean logs of
+    six foreign machines 6.5–89 % (one FRF) and 21–99.8 % (two) by its 95 % interval."""
+    n = len(models)
+    f0 = np.hstack([noise_factor(m, prior_spread_cov(m), ts_s, n_taps) for m in models])
+    f0 = f0 / math.sqrt(n)
+    total = PRIOR_SPREAD_WEIGHT + n - 1
+    blend = np.hstack([L * math.sqrt((n - 1) / total),
+                       f0 * math.sqrt(PRIOR_SPREAD_WEIGHT / total)])
+    return blend * math.sqrt(1.0 + 1.0 / n)
+
+
 def ensemble_impulse(models, ts_s: float, n_taps: int, covs=None):
     """(mean (n,), factor (n, r)) of the members' impulse responses: Σ_h = L Lᵀ, the members'
     sample covariance plus, with ``covs`` (each member's ``fit_covariance``), the mean's own
@@ -1091,13 +1164,18 @@ def ensemble_impulse(models, ts_s: float, n_taps: int, covs=None):
     The second term is what a mean of N noisy fits carries. Where the members' spread is
     honest it adds a share 1/N of it (the predictive spread of a mean estimated from N
     draws); where every member kept the set's value along a direction the data do not
-    determine (``fit_covariance``) it is the only term that says so."""
+    determine (``fit_covariance``) it is the only term that says so. Fewer than
+    MIN_SPREAD_MEASUREMENTS members: their spread is blended with a typical machine's
+    (``_with_prior_spread``)."""
     hs = np.array([m.impulse(ts_s, n_taps) for m in models])
     mean = hs.mean(axis=0)
-    if hs.shape[0] > 1:
-        L = (hs - mean).T / math.sqrt(hs.shape[0] - 1)
+    n = hs.shape[0]
+    if n > 1:
+        L = (hs - mean).T / math.sqrt(n - 1)
     else:
         L = np.zeros((n_taps, 0))
+    if n < MIN_SPREAD_MEASUREMENTS:
+        L = _with_prior_spread(models, L, ts_s, n_taps)
     if covs is not None:
         extra = [noise_factor(m, c, ts_s, n_taps) for m, c in zip(models, covs) if c is not None]
         if extra:

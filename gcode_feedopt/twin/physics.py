@@ -33,7 +33,8 @@ from ..errors import ModelWarning, ProfileError
 from ..firmware.shaper import shape_axes
 from ..vm.effects import dominant_mode_hz
 from . import frf as _frf
-from .modal import AxisModal, ModalModel, ensemble_impulse, fit_axis
+from .modal import (MIN_SPREAD_MEASUREMENTS, PRIOR_SPREAD_FREQ, PRIOR_SPREAD_WEIGHT, AxisModal,
+                    ModalModel, ensemble_impulse, fit_axis, prior_spread_response_var)
 
 _CACHE: dict = {}
 
@@ -375,9 +376,12 @@ class AxisPhysics:
         understates (the second move left it 1.05 times; 0.47 times this bound). A real
         −12 % shift of seed 17's loop mode leaves this bound 4.7 times over, benchA's −9 %
         shift 22 times; of the foreign machines' named shifts (seeds 0–67) the closest
-        is seed 12's servo loop, 1.38 times. False when there is nothing to compare (fewer
-        than two members, no band, or no modal model)."""
-        if len(self.members) < 2 or self.band_hz is None or self.model is None:
+        is seed 12's servo loop, 1.38 times. Fewer than MIN_SPREAD_MEASUREMENTS members:
+        s² blends their spread with a typical machine's (``modal.prior_spread_response_var``)
+        as the twin's impulse response does (``modal._with_prior_spread``), a known variance:
+        k² = χ²₂(0.95)/2·(1 + 1/n). False when there is nothing to compare (no member, no
+        band, or no modal model)."""
+        if not self.members or self.band_hz is None or self.model is None:
             return False
         f = np.asarray(self.band_hz, float)
         f = f[f > 0]
@@ -389,8 +393,14 @@ class AxisPhysics:
 
         R = np.array([m.response(f) for m in self.members])
         n, mean = R.shape[0], R.mean(axis=0)
-        s = np.sqrt(np.sum(np.abs(R - mean) ** 2, axis=0) / (n - 1))
-        k = math.sqrt(stats.f.ppf(0.95, 2, 2 * (n - 1)) * (1.0 + 1.0 / n))
+        ss = np.sum(np.abs(R - mean) ** 2, axis=0)
+        if n < MIN_SPREAD_MEASUREMENTS:
+            s0 = np.mean([prior_spread_response_var(m, f) for m in self.members], axis=0)
+            s = np.sqrt((PRIOR_SPREAD_WEIGHT * s0 + ss) / (PRIOR_SPREAD_WEIGHT + n - 1))
+            k = math.sqrt(stats.chi2.ppf(0.95, 2) / 2 * (1.0 + 1.0 / n))
+        else:
+            s = np.sqrt(ss / (n - 1))
+            k = math.sqrt(stats.f.ppf(0.95, 2, 2 * (n - 1)) * (1.0 + 1.0 / n))
         if form == "mass":
             dom = self.model.dominant
             moved = self.model.mode_shifted(dom, f1 / float(self.model.freq_hz[dom]))
@@ -444,6 +454,14 @@ def axis_physics(profile) -> dict:
             # is largest may differ between members of two near-equal modes)
             doms = [float(ft.model.freq_hz[k]) for ft, k in zip(fits.fits, fits.member_modes(dom))
                     if ft.model.b0[k] != 0 or ft.model.b1_rad_s[k] != 0] or [f_dom]
+            if len(fits.fits) < MIN_SPREAD_MEASUREMENTS:
+                # too few members to span the mode: a typical machine's spread about it, as the
+                # impulse response's factor carries it; half of the 95 % band of one more draw,
+                # since the diagnosis's bar widens a span by half its width on each side (the
+                # members' range understates the population's; diagnose._mode_bar)
+                half = (0.5 * stats.norm.ppf(0.975) * PRIOR_SPREAD_FREQ
+                        * math.sqrt(1 + 1 / len(fits.fits)))
+                doms += [f_dom * math.exp(-half), f_dom * math.exp(half)]
             span = (min(doms), max(doms)) if mm.damping[dom] < RINGING_ZETA else None
             zeta = float(mm.damping[dom])
             integral = bool(np.any(mm.damping > 1.0))

@@ -94,10 +94,15 @@ def test_a_move_inside_the_members_spread_is_no_change_of_the_machine(form):
     assert not phys.move_inside_spread(form, 52.5, 50.0)
 
 
-def test_no_spread_to_compare_with_leaves_every_move_a_change():
+def test_one_member_is_compared_with_a_typical_machines_spread():
+    """One FRF gives no spread: a typical machine's (modal.PRIOR_SPREAD_FREQ, 1.5 %) stands in,
+    so a 0.2 % move is a machine of the profile's population and a 5 % one is not; without a
+    band nothing is compared and every move is a change."""
     one = _members_around(50.0, 0.01)
     one = dataclasses.replace(one, members=one.members[:1])
-    assert not one.move_inside_spread("mass", 50.1, 50.0)
+    assert one.move_inside_spread("mass", 50.1, 50.0)
+    assert not one.move_inside_spread("mass", 47.5, 50.0)
+    assert not one.move_inside_spread("mass", 52.5, 50.0)
     assert not dataclasses.replace(_members_around(50.0, 0.01), band_hz=None).move_inside_spread(
         "mass", 50.1, 50.0)
 
