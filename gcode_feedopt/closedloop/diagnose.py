@@ -560,22 +560,21 @@ def _absorb_mode(a: _Axis, plain: _Model, named_kinds=()) -> _Model:
     not first order: the phase error grows along the ringing, and L leaves a residual a
     ``resonance_shift`` fitted *inside* the members' band then explains (a foreign belt machine
     with members at 49.0–50.4 Hz: every clean log was named a shift to 49.7 Hz). So the mode is
-    scanned over the members' band, widened by half its width on each side (the plant of the
-    logs is not one of the measurements): the known uncertainty explains the mismatch before
-    any effect may. A true shift (a mass change of 25 %: −11 %) lies far outside. Only a mode
+    scanned over the band the known uncertainty allows (``AxisPhysics.mode_scan_hz``: the
+    members' band widened by half its width on each side, the plant of the logs not being one
+    of the measurements): the known uncertainty explains the mismatch before any effect may. A true shift (a mass change of 25 %: −11 %) lies far outside. Only a mode
     that rings (ζ < ``RINGING_ZETA``) is scanned: a heavily damped one is linear enough in its
     frequency for L, and is poorly located by its members (a servo's: 19–48 Hz). Candidates
     stay built on the profile's mean (what ``diagnose -o`` writes), so the moved mode never
     leaks into a named effect's parameters or the after figures. After an effect is named the
     bar is its model with the mode moved again (the effect's columns refitted): a second effect
     on the axis must beat that too — unless the effect named was the mode's own shift."""
-    span = a.phys.mode_span_hz
-    if (a.phys.shifted is None or span is None or a.cmd.size < 8
+    scan = a.phys.mode_scan_hz
+    if (a.phys.shifted is None or scan is None or a.cmd.size < 8
             or "resonance_shift" in named_kinds):
         return plain
-    lo, hi = span
-    half = 0.5 * (hi - lo)
-    if half <= 1e-6 * hi:
+    lo, hi = scan
+    if hi - lo <= 2e-6 * hi:
         return plain
 
     def moved(f1):
@@ -585,7 +584,7 @@ def _absorb_mode(a: _Axis, plain: _Model, named_kinds=()) -> _Model:
     def score(f1):
         return -a.ss(moved(f1), a.fit)
 
-    grid = np.linspace(lo - half, hi + half, 9)
+    grid = np.linspace(lo, hi, 9)
     f1, v, _ = _scan(score, grid, refine=False)
     f1, v = _refine(score, grid, f1, v, rounds=2, points=5)
     return moved(f1) if -v < a.ss(plain, a.fit) else plain

@@ -1070,22 +1070,27 @@ def _with_params(model: ModalModel, p: np.ndarray) -> ModalModel:
     return dataclasses.replace(new, delay_s=model.delay_s)
 
 
-def noise_factor(model: ModalModel, cov: np.ndarray, ts_s: float, n_taps: int) -> np.ndarray:
-    """(n_taps, r) factor F of the impulse response's covariance G·cov·Gᵀ = F Fᵀ from the
-    fit's parameter covariance ``cov``, G = ∂h/∂θ (linear: the response's derivative along
-    each principal direction of ``cov``, by a forward difference of ``FD_STEP``). Linear on
-    purpose: two close real poles of a servo fit trade off with parameter deviations of
-    e^18 along which the response hardly moves; stepping ±1σ there leaves the model."""
+def _linear_columns(model: ModalModel, cov: np.ndarray, evaluate) -> list:
+    """Columns c_k = √λ_k · ∂e/∂θ·v_k of what ``evaluate`` (a ModalModel -> array) gives,
+    along each principal direction (λ_k, v_k) of the packed parameters' covariance ``cov``
+    (``_pack``, DC pinned), by a forward difference of ``FD_STEP``: Σ_k c_k c_kᴴ = J·cov·Jᴴ.
+    Linear on purpose: two close real poles of a servo fit trade off with parameter
+    deviations of e^18 along which the response hardly moves; stepping ±1σ there leaves the
+    model."""
     lam, V = np.linalg.eigh(0.5 * (cov + cov.T))
     top = float(lam.max()) if lam.size else 0.0
-    dirs = np.flatnonzero(lam > 1e-12 * max(top, 1e-300))
-    if dirs.size == 0:
-        return np.zeros((n_taps, 0))
     p0 = _pack(model, False)
-    h0 = _with_params(model, p0).impulse(ts_s, n_taps)
-    cols = [(_with_params(model, p0 + FD_STEP * V[:, k]).impulse(ts_s, n_taps) - h0)
-            * (math.sqrt(lam[k]) / FD_STEP) for k in dirs]
-    return np.array(cols).T
+    e0 = evaluate(_with_params(model, p0))
+    return [(evaluate(_with_params(model, p0 + FD_STEP * V[:, k])) - e0)
+            * (math.sqrt(lam[k]) / FD_STEP)
+            for k in np.flatnonzero(lam > 1e-12 * max(top, 1e-300))]
+
+
+def noise_factor(model: ModalModel, cov: np.ndarray, ts_s: float, n_taps: int) -> np.ndarray:
+    """(n_taps, r) factor F of the impulse response's covariance G·cov·Gᵀ = F Fᵀ from the
+    fit's parameter covariance ``cov``, G = ∂h/∂θ (``_linear_columns``)."""
+    cols = _linear_columns(model, cov, lambda m: m.impulse(ts_s, n_taps))
+    return np.array(cols).T if cols else np.zeros((n_taps, 0))
 
 
 #: step of the forward difference in ``noise_factor`` (the packed parameters are logs and
@@ -1126,17 +1131,10 @@ def prior_spread_cov(model: ModalModel) -> np.ndarray:
 
 def prior_spread_response_var(model: ModalModel, freq_hz) -> np.ndarray:
     """(K,) E|ΔH(f)|² of ``model``'s response at ``freq_hz`` under ``prior_spread_cov``
-    (linear: the response's derivative along each principal direction, as ``noise_factor``)."""
-    cov = prior_spread_cov(model)
-    lam, V = np.linalg.eigh(cov)
+    (linear, ``_linear_columns``)."""
     f = np.asarray(freq_hz, float)
-    p0 = _pack(model, False)
-    h0 = _with_params(model, p0).response(f)
-    out = np.zeros(f.size)
-    for k in np.flatnonzero(lam > 1e-12 * max(float(lam.max()), 1e-300)):
-        d = (_with_params(model, p0 + FD_STEP * V[:, k]).response(f) - h0) / FD_STEP
-        out += lam[k] * np.abs(d) ** 2
-    return out
+    cols = _linear_columns(model, prior_spread_cov(model), lambda m: m.response(f))
+    return np.sum(np.abs(np.array(cols)) ** 2, axis=0) if cols else np.zeros(f.size)
 
 
 def _with_prior_spread(models, L: np.ndarray, ts_s: float, n_taps: int) -> np.ndarray:

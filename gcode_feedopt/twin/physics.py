@@ -343,6 +343,12 @@ class AxisPhysics:
         model: the representative modal model (``shifted`` moves its dominant mode), or None.
         members: the FRF members' modal models (their spread is the known uncertainty).
         band_hz: (K,) the measured FRF frequencies, or None.
+        mode_span_hz: (lo, hi) of the dominant mode over the members (the same mode in each),
+            or None where it does not ring (ζ ≥ RINGING_ZETA) or there is no modal model.
+        mode_scan_hz: (lo, hi) where the plant's dominant mode may lie by the known
+            uncertainty (``mode_scan_band``): the band the diagnosis scans before it may name
+            an effect; None with ``mode_span_hz``.
+        mode_zeta: the representative model's damping of that mode.
     """
 
     mean: np.ndarray
@@ -351,6 +357,7 @@ class AxisPhysics:
     shifted: Callable[[float], np.ndarray] | None = None
     force: np.ndarray | None = None
     mode_span_hz: tuple[float, float] | None = None
+    mode_scan_hz: tuple[float, float] | None = None
     mode_zeta: float | None = None
     integral_action: bool = False
     model: ModalModel | None = None
@@ -420,6 +427,26 @@ def nominal_impulse(profile) -> dict:
     return out
 
 
+def mode_scan_band(span: tuple[float, float], f_hz: float, n: int) -> tuple[float, float]:
+    """Where the plant's dominant mode may lie, from its members' range ``span`` (n members)
+    about the representative model's ``f_hz``: the range widened by half its width on each
+    side (n members' min–max understates the population's, and the plant of the logs is not
+    one of them: a foreign belt machine's members at 49.0–50.4 Hz left a clean log's mode at
+    49.7 Hz unexplained until the whole band was scanned). Fewer than
+    MIN_SPREAD_MEASUREMENTS members cannot span it: the band also covers the 95 % band of
+    one more draw of a typical machine's spread about ``f_hz`` (PRIOR_SPREAD_FREQ, as the
+    impulse response's factor carries it; ``modal._with_prior_spread``): with the members'
+    spread alone, clean logs of machines measured once were named resonance shifts; a band
+    twice as wide (±8 %) hid a corexy's real −8.6 % shift."""
+    lo, hi = span
+    half = 0.5 * (hi - lo)
+    lo, hi = lo - half, hi + half
+    if n < MIN_SPREAD_MEASUREMENTS:
+        w = stats.norm.ppf(0.975) * PRIOR_SPREAD_FREQ * math.sqrt(1 + 1 / n)
+        lo, hi = min(lo, f_hz * math.exp(-w)), max(hi, f_hz * math.exp(w))
+    return lo, hi
+
+
 def axis_physics(profile) -> dict:
     """axis -> AxisPhysics of a profile: what ``closedloop.diagnose`` and the force form of
     ``twin.extensions`` know of each axis."""
@@ -454,15 +481,10 @@ def axis_physics(profile) -> dict:
             # is largest may differ between members of two near-equal modes)
             doms = [float(ft.model.freq_hz[k]) for ft, k in zip(fits.fits, fits.member_modes(dom))
                     if ft.model.b0[k] != 0 or ft.model.b1_rad_s[k] != 0] or [f_dom]
-            if len(fits.fits) < MIN_SPREAD_MEASUREMENTS:
-                # too few members to span the mode: a typical machine's spread about it, as the
-                # impulse response's factor carries it; half of the 95 % band of one more draw,
-                # since the diagnosis's bar widens a span by half its width on each side (the
-                # members' range understates the population's; diagnose._mode_bar)
-                half = (0.5 * stats.norm.ppf(0.975) * PRIOR_SPREAD_FREQ
-                        * math.sqrt(1 + 1 / len(fits.fits)))
-                doms += [f_dom * math.exp(-half), f_dom * math.exp(half)]
-            span = (min(doms), max(doms)) if mm.damping[dom] < RINGING_ZETA else None
+            span = scan = None
+            if mm.damping[dom] < RINGING_ZETA:
+                span = (min(doms), max(doms))
+                scan = mode_scan_band(span, f_dom, len(fits.fits))
             zeta = float(mm.damping[dom])
             integral = bool(np.any(mm.damping > 1.0))
             model, members = mm, tuple(ft.model for ft in fits.fits)
@@ -471,10 +493,11 @@ def axis_physics(profile) -> dict:
             model, members, band = None, (), None
             mode = dominant_mode_hz(mean, profile.ts_s)
             force = None
-            span = zeta = None
+            span = scan = zeta = None
             integral = False
         out[ax] = AxisPhysics(mean=mean, factor=L, mode_hz=mode, shifted=shifted, force=force,
-                              mode_span_hz=span, mode_zeta=zeta, integral_action=integral,
+                              mode_span_hz=span, mode_scan_hz=scan, mode_zeta=zeta,
+                              integral_action=integral,
                               model=model, members=members, band_hz=band)
     return out
 

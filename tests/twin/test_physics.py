@@ -14,8 +14,8 @@ from gcode_feedopt.profile import load_profile
 from gcode_feedopt.profile.builtin import modal_frf
 from gcode_feedopt.profile.schema import FRFSet, Mode
 from gcode_feedopt.twin.modal import ModalModel
-from gcode_feedopt.twin.physics import (RING_FRACTION, AxisPhysics, memory_time_s, ring_time_s,
-                                        settle_time_s)
+from gcode_feedopt.twin.physics import (RING_FRACTION, AxisPhysics, memory_time_s,
+                                        mode_scan_band, ring_time_s, settle_time_s)
 
 
 def _one_mode_profile(freq_hz, zeta):
@@ -130,6 +130,28 @@ def test_another_measurement_of_the_same_machine_is_inside_its_spread():
         far.append(phys.move_inside_spread("mass", fs[:n].mean() * (1 - 10 * sd), f0))
     assert 0.83 <= np.mean(inside) <= 0.95, np.mean(inside)
     assert not any(far)
+
+
+def test_the_band_a_mode_is_scanned_over():
+    """``mode_scan_band``: three or more members' range widened by half its width on each
+    side; fewer also cover the 95 % band of one more draw of a typical machine's spread. A
+    machine whose mode scatters as PRIOR_SPREAD_FREQ says, measured once or twice: a further
+    draw of it (the plant of the logs) falls in the band ≈ 95 % of the time measured once (the
+    band is that closed form: the plant and the one member differ by √2 σ), more measured
+    twice (the members' widened range adds to it)."""
+    from gcode_feedopt.twin.modal import PRIOR_SPREAD_FREQ
+
+    assert mode_scan_band((49.0, 50.4), 49.7, 4) == pytest.approx((48.3, 51.1))
+    assert mode_scan_band((49.0, 50.4), 49.7, 3) == pytest.approx((48.3, 51.1))
+    w = 1.959964 * PRIOR_SPREAD_FREQ * math.sqrt(2)
+    assert mode_scan_band((50.0, 50.0), 50.0, 1) == pytest.approx((50 * math.exp(-w),
+                                                                    50 * math.exp(w)))
+    rng = np.random.default_rng(11)
+    for n, lo_cov, hi_cov in ((1, 0.94, 0.96), (2, 0.95, 0.99)):
+        fs = 40.0 * np.exp(PRIOR_SPREAD_FREQ * rng.standard_normal((20000, n + 1)))
+        inside = [lo <= f[n] <= hi for f in fs
+                  for lo, hi in [mode_scan_band((f[:n].min(), f[:n].max()), f[:n].mean(), n)]]
+        assert lo_cov <= np.mean(inside) <= hi_cov, (n, np.mean(inside))
 
 
 def test_the_residual_filter_is_the_ridge_least_squares_of_the_lagged_command():
