@@ -562,9 +562,10 @@ def _absorb_mode(a: _Axis, plain: _Model, named_kinds=()) -> _Model:
     with members at 49.0–50.4 Hz: every clean log was named a shift to 49.7 Hz). So the mode is
     scanned over the band the known uncertainty allows (``AxisPhysics.mode_scan_hz``: the
     members' band widened by half its width on each side, the plant of the logs not being one
-    of the measurements): the known uncertainty explains the mismatch before any effect may. A true shift (a mass change of 25 %: −11 %) lies far outside. Only a mode
-    that rings (ζ < ``RINGING_ZETA``) is scanned: a heavily damped one is linear enough in its
-    frequency for L, and is poorly located by its members (a servo's: 19–48 Hz). Candidates
+    of the measurements): the known uncertainty explains the mismatch before any effect may.
+    A true shift (a mass change of 25 %: −11 %) lies far outside. Only a mode that rings
+    (ζ < ``RINGING_ZETA``) is scanned: a heavily damped one is linear enough in its frequency
+    for L, and is poorly located by its members (a servo's: 19–48 Hz). Candidates
     stay built on the profile's mean (what ``diagnose -o`` writes), so the moved mode never
     leaks into a named effect's parameters or the after figures. After an effect is named the
     bar is its model with the mode moved again (the effect's columns refitted): a second effect
