@@ -75,6 +75,19 @@ def _fan_alone_named(made, amplitude_rel):
     return d
 
 
+def _clean_diagnoses(made):
+    """(file, effects named beside the data set's inherent ones, Diagnosis) of each clean log
+    of a data set made by ``dataset``."""
+    out, labels, prof = made
+    inherent = {(e["kind"], e["axis"]) for e in labels["inherent"]}
+    for e in labels["logs"]:
+        if e["effects"][0]["kind"] != "none":
+            continue
+        d = diagnose_log(_log(out, prof, e["file"].split("/")[-1]), prof)
+        yield e["file"], [g for g in d.effects if g["kind"] != "none"
+                          and (g["kind"], g["axis"]) not in inherent], d
+
+
 def _rms(v):
     return float(np.sqrt(np.mean(np.square(v))))
 
@@ -435,18 +448,14 @@ def test_clean_logs_of_a_plant_inside_the_spread_are_none(which, dataset):
     servo31: log_02 had "resonance_shift x 19.02 Hz" named, a −0.7 % move of the loop mode
     its four members put at 18.94–19.33 Hz, 1.05 times the furthest member's deviation and
     0.47 times the bound of one more member (AxisPhysics.move_inside_spread)."""
-    out, labels, prof = dataset(which)
-    inherent = {(e["kind"], e["axis"]) for e in labels["inherent"]}
-    for e in labels["logs"]:
-        if e["effects"][0]["kind"] != "none":
-            continue
-        d = diagnose_log(_log(out, prof, e["file"].split("/")[-1]), prof)
-        named = [g for g in d.effects if g["kind"] != "none" and (g["kind"], g["axis"]) not in inherent]
-        assert not named, (which, e["file"], named)
+    made = dataset(which)
+    inherent = made[1]["inherent"]
+    for name, named, d in _clean_diagnoses(made):
+        assert not named, (which, name, named)
         if not inherent:  # a corexy's cross-talk leaves more than its noise (docs/diagnose.md)
             left = {ax: lo["rms_mm"] / lo["noise_mm"] for ax, lo in d.leftover.items()
                     if lo["significant"]}
-            assert not left, (which, e["file"], left)
+            assert not left, (which, name, left)
 
 
 @pytest.mark.slow
@@ -458,14 +467,8 @@ def test_a_corexys_belts_placed_off_ring_no_fan(dataset):
     after lap): "periodic_time x 37.9 Hz, 2.7 µm" on a clean log. The ring a fan must beat
     near a mode holds that term too (diagnose._ring_bar); no clean log names anything but
     the belts' cross-talk."""
-    out, labels, prof = dataset("corexy610more")
-    inherent = {(e["kind"], e["axis"]) for e in labels["inherent"]}
-    for e in labels["logs"]:
-        if e["effects"][0]["kind"] != "none":
-            continue
-        d = diagnose_log(_log(out, prof, e["file"].split("/")[-1]), prof)
-        named = [g for g in d.effects if g["kind"] != "none" and (g["kind"], g["axis"]) not in inherent]
-        assert not named, (e["file"], named)
+    for name, named, _ in _clean_diagnoses(dataset("corexy610more")):
+        assert not named, (name, named)
 
 
 @pytest.mark.parametrize("which", ["hotend1", "belt11", "servo43"])
