@@ -11,7 +11,7 @@ simulated elsewhere) is in test_diagnose_bench_a.py.
 import numpy as np
 import pytest
 
-from gcode_feedopt.closedloop.catalogue import sincos_rss
+from gcode_feedopt.closedloop.catalogue import sincos_rss, undo_response
 from gcode_feedopt.closedloop.diagnose import KINDS, diagnose_arrays, leftover
 from gcode_feedopt.twin.physics import axis_physics
 from gcode_feedopt.closedloop.motion import point_to_point
@@ -185,3 +185,33 @@ def test_sincos_rss_is_the_least_squares_fit():
         got = sincos_rss(r, u, freqs)
         np.testing.assert_allclose(got, want, rtol=1e-9)
         assert np.argmin(got) == 1 and got[1] / K == pytest.approx(1.0, rel=0.1)
+
+
+def test_undo_response_inverts_where_the_response_carries_the_signal():
+    """The regularised inverse H*/(|H|² + ε·max|H|²) the dynamics form of periodic_position
+    ranks with: a pure delay (|H| = 1) comes back exactly, scaled 1/(1 + ε); a sinusoid
+    through a damped mode comes back in amplitude and phase by |H|²/(|H|² + ε·max|H|²) at its
+    frequency, while noise where |H| is small is not amplified beyond 1/(2√ε·max|H|)."""
+    rng = np.random.default_rng(3)
+    r = rng.normal(0.0, 1.0, 2000)
+    got = undo_response(r, np.array([0.0, 0.0, 1.0]), eps=0.01)
+    np.testing.assert_allclose(got[:-2], r[2:] / 1.01, atol=1e-12)
+    ts, f0, zeta, f = 0.002, 30.0, 0.3, 12.0
+    tt = np.arange(1000) * ts
+    w0 = 2 * np.pi * f0
+    wd = w0 * np.sqrt(1 - zeta ** 2)
+    h = ts * w0 ** 2 / wd * np.exp(-zeta * w0 * tt) * np.sin(wd * tt)   # unit DC gain
+    t = np.arange(6000) * ts
+    x = np.sin(2 * np.pi * f * t)
+    y = np.convolve(x, h)[:t.size]
+    H = np.fft.rfft(h, 1 << 14)
+    peak = float(np.max(np.abs(H)) ** 2)
+    Hf = np.sum(h * np.exp(-2j * np.pi * f * tt))
+    gain = abs(Hf) ** 2 / (abs(Hf) ** 2 + 0.01 * peak)
+    mid = slice(2000, 4000)                       # away from the start's transient and the end
+    u = undo_response(y, h)[mid]
+    G = np.column_stack([np.sin(2 * np.pi * f * t[mid]), np.cos(2 * np.pi * f * t[mid])])
+    c = np.linalg.lstsq(G, u, rcond=None)[0]
+    assert np.hypot(*c) == pytest.approx(gain, rel=0.01) and abs(c[1]) < 0.01
+    n = rng.normal(0.0, 1.0, 6000)
+    assert np.std(undo_response(n, h)) < 1.0 / (2 * np.sqrt(0.01 * peak))
