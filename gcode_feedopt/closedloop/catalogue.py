@@ -499,7 +499,7 @@ def _cross_coupling(S: _Scorer, other: _Axis):
         return np.gradient(np.gradient(p, ts), ts)
 
     G_acc = respond(acc(po), hd)[:, None]
-    forms = {"acceleration": G_acc, "command": respond(acc(other.cmd), hd)[:, None],
+    forms = {"acceleration": G_acc, "command": respond(other.cmd_acc, hd)[:, None],
              "belt": respond(G_acc[:, 0], hd)[:, None], "position": (po - po[0])[:, None]}
     score = {form: S.score_extra(G) for form, G in forms.items()}
     form = max(forms, key=lambda f: score[f])     # ties: the first, in the order above

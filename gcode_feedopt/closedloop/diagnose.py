@@ -69,6 +69,7 @@ part; a periodic_time effect's phase is not kept: the extended profile carries i
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
@@ -242,6 +243,11 @@ class _Axis:
         # the draw's prior z ~ N(0, I) against white measurement noise σ²: MAP adds σ²‖z‖²
         self.prior = noise_floor_mm(meas - self.p0) ** 2
         self.lag, self.lag_sd = _lag_column(self.p0, phys, ts_s)
+
+    @functools.cached_property
+    def cmd_acc(self) -> np.ndarray:
+        """The commanded acceleration, mm/s² (the ring bar's and cross_coupling's input)."""
+        return np.gradient(np.gradient(self.cmd, self.ts), self.ts)
 
     def fit_model(self, pred, extra, lag: bool = False) -> _Model:
         """Fit the draw z (bounded, with its prior) and the free weights on the fit rows.
@@ -624,8 +630,7 @@ def _ring_bar(a: _Axis, other: _Axis, bar: _Model, f_hz: float) -> _Model | None
     taps = (env * np.sin(wd * t), env * np.cos(wd * t),
             t * env * np.sin(wd * t), t * env * np.cos(wd * t))
     cols = []
-    for c in (a.cmd, other.cmd):
-        acc = np.gradient(np.gradient(c, a.ts), a.ts)
+    for acc in (a.cmd_acc, other.cmd_acc):
         for h in taps:
             g = oaconvolve(acc, h)[:acc.size]
             s = float(np.sqrt(np.mean(g[a.fit] ** 2)))
