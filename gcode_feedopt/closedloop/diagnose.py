@@ -535,10 +535,11 @@ def _judge(raw, A: dict, bar: dict, base: dict, fit, hold, n_hold: int,
         frac = (ss0_h - ss1_h) / ss0_h if ss0_h > 0 else 0.0
         ring_frac = None
         if t_fit > crit_fit and t_hold > crit_hold and frac < MIN_EXPLAINED:
+            drv = base[ax].extra
             if ax not in rings:
-                rings[ax] = [r for r in (_ring_bar(a, other, b, a.phys.mode_hz or 0.0)
+                rings[ax] = [r for r in (_ring_bar(a, other, b, a.phys.mode_hz or 0.0, drv)
                                          for b in (bar[ax], base[ax])) if r is not None]
-            ring_frac = _ring_relevance(a, other, m, rings[ax], crit_fit, crit_hold)
+            ring_frac = _ring_relevance(a, other, m, rings[ax], drv, crit_fit, crit_hold)
         cands.append(Candidate(kind, ax, params, form, ss1_f, ss1_h, ss0_f - ss1_f,
                                ss0_h - ss1_h, frac, float(t_fit), float(t_hold), crit_fit,
                                crit_hold, m, ring_frac))
@@ -546,11 +547,12 @@ def _judge(raw, A: dict, bar: dict, base: dict, fit, hold, n_hold: int,
     return cands
 
 
-def _ring_relevance(a: _Axis, other: _Axis, m: _Model, rings: list, crit_fit: float,
-                    crit_hold: float) -> float | None:
+def _ring_relevance(a: _Axis, other: _Axis, m: _Model, rings: list, drivers: np.ndarray,
+                    crit_fit: float, crit_hold: float) -> float | None:
     """The share of the held-out SS a candidate explains beyond its axis's mode ring, where it
     passes both tests against the ring too (its model with the ring's columns against the
-    better ring bar, ``rings``); else None.
+    better ring bar, ``rings``, all driven by the model so far's effects, ``drivers``); else
+    None.
 
     Relevance asks an effect to explain ``MIN_EXPLAINED`` of what is left, and on an axis
     with a lightly damped mode most of what is left may be that mode's ring — the plant's
@@ -562,7 +564,7 @@ def _ring_relevance(a: _Axis, other: _Axis, m: _Model, rings: list, crit_fit: fl
     8.3 µm eccentricity (λ 6.94 mm) explained 14 % of what the bar left: `none` before."""
     if not rings:
         return None
-    rm = _ring_bar(a, other, m, a.phys.mode_hz or 0.0)
+    rm = _ring_bar(a, other, m, a.phys.mode_hz or 0.0, drivers)
     if rm is None:
         return None
     fit, hold = a.fit, a.hold
@@ -651,7 +653,8 @@ def _absorb_mode(a: _Axis, plain: _Model, named_kinds=()) -> _Model:
     return moved(f1) if -v < a.ss(plain, a.fit) else plain
 
 
-def _ring_bar(a: _Axis, other: _Axis, bar: _Model, f_hz: float) -> _Model | None:
+def _ring_bar(a: _Axis, other: _Axis, bar: _Model, f_hz: float,
+              drivers: np.ndarray | None = None) -> _Model | None:
     """What a ``periodic_time`` near a ringing mode must beat besides the bar: the mode ringing
     at that frequency as the commands excite it (``RING_BAND``; None elsewhere).
 
@@ -669,7 +672,13 @@ def _ring_bar(a: _Axis, other: _Axis, bar: _Model, f_hz: float) -> _Model | None
     little off the twin's, a ring whose phase drifts as it decays) — joins the bar: a fan is
     named only where a sinusoid beats the motion's own ringing too. Without the derivative
     a corexy whose belts (38.9/38.2 Hz, ζ 0.026) its five FRFs place on a 2 Hz grid had a
-    2.7 µm "fan" at 37.9 Hz named on a clean rose (tests/foreign, corexy610more)."""
+    2.7 µm "fan" at 37.9 Hz named on a clean rose (tests/foreign, corexy610more).
+
+    The named effects drive the mode too: each of ``drivers``' columns (default the bar's
+    effect columns), differentiated in time, through the same taps — a Coulomb force's step
+    at each reversal rings the mode, and the twin's form of it leaves that ring a little off:
+    a belt machine's friction (tests/foreign, 624, x's mode 23.4 Hz) had a 2.7 µm "fan" at
+    22.9 Hz named after it on a butterfly."""
     span, zeta = a.phys.mode_span_hz, a.phys.mode_zeta
     if span is None or zeta is None or a.cmd.size < 8:
         return None
@@ -683,8 +692,9 @@ def _ring_bar(a: _Axis, other: _Axis, bar: _Model, f_hz: float) -> _Model | None
     wd = w * math.sqrt(max(1 - zeta * zeta, 1e-6))
     taps = (env * np.sin(wd * t), env * np.cos(wd * t),
             t * env * np.sin(wd * t), t * env * np.cos(wd * t))
+    drivers = bar.extra if drivers is None else drivers
     cols = []
-    for acc in (a.cmd_acc, other.cmd_acc):
+    for acc in (a.cmd_acc, other.cmd_acc, *(np.gradient(c, a.ts) for c in drivers.T)):
         for h in taps:
             g = oaconvolve(acc, h)[:acc.size]
             s = float(np.sqrt(np.mean(g[a.fit] ** 2)))
