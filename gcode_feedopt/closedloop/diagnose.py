@@ -49,8 +49,10 @@ part. A candidate is named only if all hold:
 - *held-out part* (never used to fit or scan): T_hold = ΔSS_hold / (SS_hold/N_eff) >
   χ²_1(1 − α): a held-out drop this large happens by chance with probability < α under "no
   effect", where over-fitting only raises held-out error;
-- *relevance*: the effect explains ≥ ``MIN_EXPLAINED`` of the held-out residual SS and
-  ≥ ``MIN_EFFECT_RMS_MM`` RMS (model error that small is below anything a tolerance sees).
+- *relevance*: the effect explains ≥ ``MIN_EXPLAINED`` of the held-out residual SS (or, on
+  an axis whose dominant mode rings, of what that mode's ring leaves, the effect beating the
+  ring on both parts too: ``_ring_relevance``) and ≥ ``MIN_EFFECT_RMS_MM`` RMS (model error
+  that small is below anything a tolerance sees).
 
 α = ``ALPHA``. Up to ``MAX_EFFECTS`` effects are named greedily, each round on what the model
 with the named ones leaves. Among the passing candidates, those whose fit-part SS is within
@@ -694,9 +696,9 @@ def _ring_bar(a: _Axis, other: _Axis, bar: _Model, f_hz: float,
             t * env * np.sin(wd * t), t * env * np.cos(wd * t))
     drivers = bar.extra if drivers is None else drivers
     cols = []
-    for acc in (a.cmd_acc, other.cmd_acc, *(np.gradient(c, a.ts) for c in drivers.T)):
+    for u in (a.cmd_acc, other.cmd_acc, *(np.gradient(c, a.ts) for c in drivers.T)):
         for h in taps:
-            g = oaconvolve(acc, h)[:acc.size]
+            g = oaconvolve(u, h)[:u.size]
             s = float(np.sqrt(np.mean(g[a.fit] ** 2)))
             if s > 0:
                 cols.append(g / s)
