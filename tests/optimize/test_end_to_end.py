@@ -226,11 +226,17 @@ def test_a_stretch_no_speed_can_promise_runs_slow_not_at_full_speed(seed, tmp_pa
     over the tolerance even with their cause window at the slow-down's floor; given up at
     full speed they ran 238 µm RMS γ (76.7 % within) on seed 164 and 25.7 µm (98.9 %) on seed
     16. Kept at the floor: within the limit, and still faster than the plant-tuned
-    conservative plan (69.5 / 59.0 s)."""
+    conservative plan (69.5 / 59.0 s).
+
+    Whether the twin expects such stretches at all turns on the arithmetic's last bits (the
+    BLAS kernels, numpy's SIMD loops): on seed 164 it gave up 14,477 samples at the floor
+    with OpenBLAS's Haswell kernels, none on an Intel Xeon (2026-12-05: numpy 2.4.6, scipy
+    1.17.1, OpenBLAS 0.3.31), where pidd keeps every sample within in 48.4 s; seed 16 gives
+    none up on either. What must hold either way: nothing given up at rest, the tolerance
+    kept, faster than the conservative plan."""
     sch, m = _foreign_pidd(seed, tmp_path, amax=5000.0, tol=0.05)
-    # given up at the floor, not at rest (the report says which: 14,477 on seed 164)
+    # given up at the floor, not at rest (the report says which)
     assert sch.info["relaxed_at_rest_samples"] == 0
-    assert sch.info["relaxed_samples"] > 0 or seed == 16
     assert m.rms_gamma_mm <= 0.05 * 0.05, (m.rms_gamma_mm, sch.info["relaxed_samples"])
     assert m.within_fraction >= 0.95
     assert m.cycle_time_s < {164: 69.5, 16: 59.0}[seed]
