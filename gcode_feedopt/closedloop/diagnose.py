@@ -537,11 +537,11 @@ def _judge(raw, A: dict, bar: dict, base: dict, fit, hold, n_hold: int,
         frac = (ss0_h - ss1_h) / ss0_h if ss0_h > 0 else 0.0
         ring_frac = None
         if t_fit > crit_fit and t_hold > crit_hold and frac < MIN_EXPLAINED:
-            drv = base[ax].extra
-            if ax not in rings:
-                rings[ax] = [r for r in (_ring_bar(a, other, b, a.phys.mode_hz or 0.0, drv)
-                                         for b in (bar[ax], base[ax])) if r is not None]
-            ring_frac = _ring_relevance(a, other, m, rings[ax], drv, crit_fit, crit_hold)
+            if ax not in rings:  # the ring's columns and bars, once per axis and round
+                cols = _ring_columns(a, other, a.phys.mode_hz or 0.0, base[ax].extra)
+                rings[ax] = (cols, [] if cols is None else
+                             [_with_columns(a, b, cols) for b in (bar[ax], base[ax])])
+            ring_frac = _ring_relevance(a, m, *rings[ax], crit_fit, crit_hold)
         cands.append(Candidate(kind, ax, params, form, ss1_f, ss1_h, ss0_f - ss1_f,
                                ss0_h - ss1_h, frac, float(t_fit), float(t_hold), crit_fit,
                                crit_hold, m, ring_frac))
@@ -549,12 +549,12 @@ def _judge(raw, A: dict, bar: dict, base: dict, fit, hold, n_hold: int,
     return cands
 
 
-def _ring_relevance(a: _Axis, other: _Axis, m: _Model, rings: list, drivers: np.ndarray,
+def _ring_relevance(a: _Axis, m: _Model, cols: np.ndarray | None, rings: list,
                     crit_fit: float, crit_hold: float) -> float | None:
     """The share of the held-out SS a candidate explains beyond its axis's mode ring, where it
-    passes both tests against the ring too (its model with the ring's columns against the
-    better ring bar, ``rings``, all driven by the model so far's effects, ``drivers``); else
-    None.
+    passes both tests against the ring too (its model with the ring's columns ``cols`` —
+    ``_ring_columns`` at the mode, driven by the model so far's effects — against the better
+    ring bar, ``rings``); else None.
 
     Relevance asks an effect to explain ``MIN_EXPLAINED`` of what is left, and on an axis
     with a lightly damped mode most of what is left may be that mode's ring — the plant's
@@ -564,11 +564,9 @@ def _ring_relevance(a: _Axis, other: _Axis, m: _Model, rings: list, drivers: np.
     (a candidate that only fits part of the ring fails that). Foreign corexy 610 (belts
     38.9/38.2 Hz, ζ 0.026): the ring leaves y 4.2 µm of 16.7 on a clean Benchy layer, and an
     8.3 µm eccentricity (λ 6.94 mm) explained 14 % of what the bar left: `none` before."""
-    if not rings:
+    if cols is None or not rings:
         return None
-    rm = _ring_bar(a, other, m, a.phys.mode_hz or 0.0, drivers)
-    if rm is None:
-        return None
+    rm = _with_columns(a, m, cols)
     fit, hold = a.fit, a.hold
     r0f, r0h = min(a.ss(b, fit) for b in rings), min(a.ss(b, hold) for b in rings)
     r1f, r1h = a.ss(rm, fit), a.ss(rm, hold)
@@ -681,6 +679,18 @@ def _ring_bar(a: _Axis, other: _Axis, bar: _Model, f_hz: float,
     at each reversal rings the mode, and the twin's form of it leaves that ring a little off:
     a belt machine's friction (tests/foreign, 624, x's mode 23.4 Hz) had a 2.7 µm "fan" at
     22.9 Hz named after it on a butterfly."""
+    cols = _ring_columns(a, other, f_hz, bar.extra if drivers is None else drivers)
+    return None if cols is None else _with_columns(a, bar, cols)
+
+
+def _with_columns(a: _Axis, m: _Model, cols: np.ndarray) -> _Model:
+    """``m`` refitted with ``cols`` as further free columns."""
+    return a.fit_model(m.pred, np.hstack([m.extra, cols]), m.lag_s is not None)
+
+
+def _ring_columns(a: _Axis, other: _Axis, f_hz: float, drivers: np.ndarray) -> np.ndarray | None:
+    """(K, c) the ring's columns of ``_ring_bar`` at ``f_hz`` (each RMS 1 on the fit part), or
+    None off the band of a ringing mode."""
     span, zeta = a.phys.mode_span_hz, a.phys.mode_zeta
     if span is None or zeta is None or a.cmd.size < 8:
         return None
@@ -694,7 +704,6 @@ def _ring_bar(a: _Axis, other: _Axis, bar: _Model, f_hz: float,
     wd = w * math.sqrt(max(1 - zeta * zeta, 1e-6))
     taps = (env * np.sin(wd * t), env * np.cos(wd * t),
             t * env * np.sin(wd * t), t * env * np.cos(wd * t))
-    drivers = bar.extra if drivers is None else drivers
     cols = []
     for u in (a.cmd_acc, other.cmd_acc, *(np.gradient(c, a.ts) for c in drivers.T)):
         for h in taps:
@@ -702,10 +711,7 @@ def _ring_bar(a: _Axis, other: _Axis, bar: _Model, f_hz: float,
             s = float(np.sqrt(np.mean(g[a.fit] ** 2)))
             if s > 0:
                 cols.append(g / s)
-    if not cols:
-        return None
-    return a.fit_model(bar.pred, np.hstack([bar.extra, np.column_stack(cols)]),
-                       bar.lag_s is not None)
+    return np.column_stack(cols) if cols else None
 
 
 def _rms(r) -> float:
