@@ -42,7 +42,9 @@ appends the drive's effects, from a random stream of their own (every other file
 ``backlash`` (a dead band between motor and belt / screw), ``periodic_position`` (an eccentric
 pulley / screw), ``friction`` (a Coulomb force on the carriage / table) and, not on a corexy,
 ``cross_coupling`` (the other axis's acceleration pushing the frame / table): ``_more_effects``
-states each form and label. benchmarks/foreign_effects.py judges the diagnosis on them.
+states each form and label. ``variants=True`` appends effects in forms neither those logs
+nor benchA's have (``_variant_effects``: a fan switched on during the log, two eccentricities
+on one axis). benchmarks/foreign_effects.py judges the diagnosis on them.
 """
 
 from __future__ import annotations
@@ -339,12 +341,14 @@ def respond_xy(mach: Machine, chans: dict, x_cmd, y_cmd, ts_s: float, *, delay_s
                friction=None, frame_force=None) -> tuple:
     """Sensed (x, y) of a plant ``chans`` for the command samples; effects on the command path
     (``axis_delay`` {axis: s}, ``axis_gain`` {axis: scale}) and ``force`` {axis: (freq_hz, N,
-    phase)} on the frame / table.
+    phase[, onset s])} on the frame / table (a fan; switched on at the onset, else running
+    throughout).
 
     In the drive, on the (fine, delayed) command of an axis before it reaches the motor (a
     corexy's: before the axis commands are mixed into its motors): ``play`` {axis: width mm}
     (a dead band between motor and belt / screw), ``ecc`` {axis: (A mm, λ mm, φ)} (the drive
-    sees u + A sin(2π u/λ + φ): pulley / screw eccentricity). Forces: ``friction`` {axis: F}
+    sees u + A sin(2π u/λ + φ): pulley / screw eccentricity; a list of such tuples adds
+    each). Forces: ``friction`` {axis: F}
     a Coulomb force −F·tanh(v/0.5 mm/s) of the commanded velocity v on the carriage / table;
     ``frame_force`` {axis: (coef, other axis, source)}: coef × the other axis's acceleration
     (mm/s²) on the frame (belt kinds) / table (servo), source ``"command"`` (its commanded
@@ -366,8 +370,9 @@ def respond_xy(mach: Machine, chans: dict, x_cmd, y_cmd, ts_s: float, *, delay_s
     def wf(ax):
         if not force or ax not in force:
             return None
-        f, amp, ph = force[ax]
-        return amp * np.sin(2 * np.pi * f * tf + ph)
+        f, amp, ph, *on = force[ax]
+        w = amp * np.sin(2 * np.pi * f * tf + ph)
+        return w * (tf >= on[0]) if on else w
 
     if play or ecc or friction or frame_force:
         x, y = _respond_drive(chans, cmd, steps, ts_s, tf, play or {}, ecc or {},
@@ -420,8 +425,9 @@ def _respond_drive(chans, cmd, steps, ts_s, tf, play, ecc, friction, frame_force
         if ax in play:
             v = _play_op(v, play[ax])
         if ax in ecc:
-            A, lam, ph = ecc[ax]
-            v = v + A * np.sin(2 * np.pi * v / lam + ph)
+            e = ecc[ax]
+            v = v + sum(A * np.sin(2 * np.pi * v / lam + ph)
+                        for A, lam, ph in (e if isinstance(e, list) else [e]))
         u[ax] = v
 
     def coulomb(ax):
@@ -522,13 +528,15 @@ def bench_a_commands() -> dict:
 
 
 def write_dataset(mach: Machine, out: pathlib.Path, *, effects: bool = True,
-                  fan_hz: float | None = None, more_effects: bool = False) -> dict:
+                  fan_hz: float | None = None, more_effects: bool = False,
+                  variants: bool = False) -> dict:
     """Write FRFs, logs and labels of ``mach`` under ``out`` (benchA's layout); return labels.
     ``fan_hz`` puts the fan (a periodic_time effect, not on a corexy) at that frequency instead
     of the drawn one; the rest of the data set is the same. ``more_effects`` appends the logs
     of the drive's effects (``_more_effects``: backlash, periodic_position, friction,
     cross_coupling), drawn from a random stream of their own: every other file is the same
-    as without them."""
+    as without them. ``variants`` then appends ``_variant_effects``'s logs (a stream of their
+    own too)."""
     rng = np.random.default_rng(10_000 + mach.seed)
     out = pathlib.Path(out)
     (out / "frf").mkdir(parents=True, exist_ok=True)
@@ -633,6 +641,16 @@ def write_dataset(mach: Machine, out: pathlib.Path, *, effects: bool = True,
             np.savetxt(out / fname, np.column_stack([t, x_cmd, y_cmd, x, y]), delimiter=",",
                        header="t,x_cmd,y_cmd,x,y", comments="", fmt="%.6f")
             logs.append({"file": fname, "path": path, "effects": labels})
+    if variants:
+        rng3 = np.random.default_rng(40_000 + mach.seed)
+        for path, kw, labels in _variant_effects(mach, plant, rng3, ts):
+            x_cmd, y_cmd = cmds[path]
+            x, y = respond_xy(mach, plant, x_cmd, y_cmd, ts, rng=rng3, **kw)
+            t = np.arange(len(x_cmd)) * ts
+            fname = f"logs/log_{len(logs) + 1:02d}.csv"
+            np.savetxt(out / fname, np.column_stack([t, x_cmd, y_cmd, x, y]), delimiter=",",
+                       header="t,x_cmd,y_cmd,x,y", comments="", fmt="%.6f")
+            logs.append({"file": fname, "path": path, "effects": labels})
     labels = {"dataset": f"foreign-{mach.seed}", "machine": mach.describe(), "logs": logs,
               "frf_measurement": truth,
               "plant": {**{a: {"dominant_hz": round(_axis_dominant(plant, a), 3)} for a in "xy"},
@@ -718,6 +736,44 @@ def _more_effects(mach: Machine, plant: dict, rng) -> list:
                                           f"a_other, a_other its {source} acceleration",
                                "source": source, "kappa": coef / m_other, "steady": not servo}}
         out.append((paths[kind], kw, [lab]))
+    return out
+
+
+def _variant_effects(mach: Machine, plant: dict, rng, ts_s: float) -> list:
+    """[(path, respond_xy keywords, labels)] of effects in forms neither the logs above nor
+    benchA write, each on a random axis:
+
+    ``periodic_time``      (not a corexy) a fan switched on 40 % into a rose (benchA's fans run
+                           from t = 0): the force from then on, the carriage ringing in;
+                           ``amplitude_mm`` 0.008–0.02 the steady amplitude, ``physics.onset_s``;
+    ``periodic_position``  twice on one axis: a belt's tooth pitch or a screw's thread (λ
+                           1.5–3 mm) and a pulley's or screw's runout (λ 20–45 mm), A 0.006–0.015
+                           mm each, on a Benchy layer: two effects of one kind.
+    """
+    out = []
+    cmds = bench_a_commands()
+    if "a" not in plant:
+        ax = "xy"[int(rng.integers(2))]
+        ff = round(float(rng.uniform(15, 35)), 1)
+        amp = round(float(rng.uniform(0.008, 0.02)), 4)
+        force = amp / abs(plant[ax].frf([ff], inp=1)[0])
+        onset = round(0.4 * (len(cmds["rose5"][0]) - 1) * ts_s, 3)
+        kw = {"force": {ax: (ff, force, float(rng.uniform(0, 2 * math.pi)), onset)}}
+        out.append(("rose5", kw, [{"kind": "periodic_time", "axis": ax,
+                                   "params": {"frequency_hz": ff, "amplitude_mm": amp},
+                                   "physics": {"force": force, "onset_s": onset}}]))
+    ax = "xy"[int(rng.integers(2))]
+    ecc, labels = [], []
+    for lo, hi in ((1.5, 3.0), (20.0, 45.0)):
+        A = round(float(rng.uniform(0.006, 0.015)), 4)
+        lam = round(float(rng.uniform(lo, hi)), 3)
+        ph = float(rng.uniform(0, 2 * math.pi))
+        ecc.append((A, lam, ph))
+        labels.append({"kind": "periodic_position", "axis": ax,
+                       "params": {"wavelength_mm": lam, "amplitude_mm": A},
+                       "physics": {"applied": "drive sees u + A sin(2 pi u / wavelength + "
+                                              "phase), both terms", "phase_rad": round(ph, 4)}})
+    out.append(("benchy_layer10", {"ecc": {ax: ecc}}, labels))
     return out
 
 
