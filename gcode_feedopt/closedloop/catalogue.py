@@ -136,8 +136,9 @@ class _Scorer:
     enters the test (diagnose_arrays), which decides whether the effect is there. The
     ``quick_*`` scores are least squares on the base's residual alone, for coarse scans."""
 
-    def __init__(self, A: _Axis, base: _Model):
+    def __init__(self, A: _Axis, base: _Model, named=None):
         self.A, self.base = A, base
+        self.named = named or {}
         self.cmd, self.ts, self.fit = A.cmd, A.ts, A.fit
         self.pred, self.extra = base.pred, base.extra
         # an effect inside the machine passes through its dynamics: the twin's mean response,
@@ -181,11 +182,18 @@ class _Scorer:
         return -float(e @ e)
 
 
+#: Kinds an axis may carry more than once (two fans; a belt's tooth pitch and its pulley's
+#: runout), each again at a frequency / wavelength the named ones' cannot be told from
+#: (``_apart``).
+REPEATABLE = ("periodic_time", "periodic_position")
+
+
 def _candidates(A: _Axis, base: _Model, named_kinds, other: _Axis, base_other: _Model):
     """[(kind, form, params, model, n_tried, q)] of every catalogue kind on axis A (delay,
     gain and resonance_shift once per axis), each parameter scanned on the fit part against
-    ``base`` (the model so far)."""
-    S = _Scorer(A, base)
+    ``base`` (the model so far). ``named_kinds``: kind -> the parameters of those named on
+    this axis."""
+    S = _Scorer(A, base, named_kinds)
     out = [c for c in (_periodic_time(S), _periodic_position(S), _backlash(S), _friction(S))
            if c is not None]
     if "delay" not in named_kinds:
@@ -221,7 +229,11 @@ def _periodic_time(S: _Scorer):
     f = np.fft.rfftfreq(n_fft, ts)
     band = (f >= 1.0) & (f <= 0.45 / ts)
     df = f[1] - f[0]
-    taken = np.zeros(f.size, bool)
+    # a second fan must lie apart from those named: two sinusoids closer than 2/T over the fit
+    # part's T are one whose amplitude or phase drifts
+    sep = 2.0 / (nf * ts)
+    named = [p["frequency_hz"] for p in S.named.get("periodic_time", ())]
+    taken = ~_apart(f, named, sep)
     peaks = []
     # the peaks of the mean's residual, then of what the draw leaves: where the twin's mean
     # misses a slow pole by far more than a fan's size (seed 334 of tests/foreign: 161 µm
@@ -261,11 +273,68 @@ def _periodic_time(S: _Scorer):
     if best is None:
         return None
     fr, _, m = best
+    if not _apart(fr, named, sep):
+        return None
+    form, extra = "time", {}
+    on = _switched_on(S, t, sincos_t, fr, df, m)
+    if on is not None and _apart(on[0], named, sep):
+        fr, t_on, m, n_on = on
+        tried += n_on
+        form, extra = "switched_on", {"switched_on_s": float(t_on)}
     w = m.w_mean[-2:]
-    return ("periodic_time", "time", {"frequency_hz": float(fr),
-                                      "amplitude_mm": float(np.hypot(*w)),
-                                      "phase_rad": float(np.arctan2(w[1], w[0]))},
+    return ("periodic_time", form, {"frequency_hz": float(fr),
+                                    "amplitude_mm": float(np.hypot(*w)),
+                                    "phase_rad": float(np.arctan2(w[1], w[0])), **extra},
             m, tried, 3)
+
+
+def _apart(v, named, sep):
+    """Whether ``v`` (a value or an array) lies at least ``sep`` from every value of ``named``."""
+    v = np.asarray(v, float)
+    if not len(named):
+        return np.ones(v.shape, bool) if v.ndim else True
+    d = np.min(np.abs(v[..., None] - np.asarray(named, float)), axis=-1)
+    return d >= sep
+
+
+#: Level of the test a fan switched on during the log must pass against one running throughout.
+SWITCH_ALPHA = 0.01
+
+
+def _switched_on(S: _Scorer, t, sincos_t, fr, df, m_st):
+    """A fan switched on during the fit part (the sinusoid from t_on on) where that fits the
+    fit part better than the fan running throughout, beyond χ²₁ at SWITCH_ALPHA
+    Bonferroni-divided over the onsets and frequencies tried (the statistic of diagnose's
+    fit-part test, with the plant draw): (frequency, t_on, model, tried) or None.
+
+    Onsets are scanned from the fit part's first tenth on: the first samples carry the
+    turn-on transient of a fan the simulation starts with the log (foreign 621 and 625:
+    "on at 0.05 s"), and an onset that early leaves the fit part's fan as it was. A fan
+    switched off (or changing speed) during the fit part is not this form: the held-out part,
+    which must confirm every effect, no longer has it."""
+    fit = S.fit
+    t0, t1 = t[fit.start], t[fit.stop - 1]
+    onsets = np.linspace(t0 + 0.1 * (t1 - t0), t1, 42)[:-1]
+
+    def gated(f, t_on):
+        return sincos_t(f) * (t >= t_on)[:, None]
+
+    # the onset at the sinusoid's frequency, the frequency from that onset on (a peak of the
+    # whole fit part is coarse where the fan ran for part of it), the onset again
+    t_on, _, n1 = _scan(lambda v: S.score_extra(gated(fr, v)), onsets, refine=False,
+                        coarse=lambda v: S.quick_extra(gated(fr, v)))
+    fr, _, n2 = _scan(lambda f: S.score_extra(gated(f, t_on)),
+                      np.linspace(fr - 2 * df, fr + 2 * df, 9))
+    t_on, _, n3 = _scan(lambda v: S.score_extra(gated(fr, v)), onsets,
+                        coarse=lambda v: S.quick_extra(gated(fr, v)))
+    n = n1 + n2 + n3
+    m_on = S.with_extra(gated(fr, t_on))
+    e1, e0 = m_on.resid[fit], m_st.resid[fit]
+    ss1 = float(e1 @ e1)
+    tstat = (float(e0 @ e0) - ss1) / max(ss1 / _n_eff(e1), 1e-30)
+    if tstat <= float(stats.chi2.isf(SWITCH_ALPHA / n, 1)):
+        return None
+    return fr, t_on, m_on, n
 
 
 #: The shortest periodic_position wavelength scanned, mm: a stepper's electrical cycle on a
@@ -289,14 +358,25 @@ def _periodic_position(S: _Scorer):
     # the axis's range R only within Δλ/λ ≈ λ/(8R): there a uniform grid of wavenumbers,
     # 1/(4R) apart. One scan over both: the coarse fit ranks them together.
     dk = 1.0 / (4.0 * max(float(np.ptp(cmd[S.fit])), 1.0))
+    # a second one apart from those named by 2/R in wavenumber over the range R the fit part
+    # covers (as fans by 2/T in frequency)
+    named = [1.0 / p["wavelength_mm"] for p in S.named.get("periodic_position", ())]
+
+    def keep(lams):
+        lams = np.asarray(lams, float)
+        return lams[_apart(1.0 / lams, named, 8.0 * dk)]
+
     fine = 1.0 / np.arange(1.0 + dk, 1.0 / LAMBDA_MIN_MM + 0.5 * dk, dk)
-    grid = np.sort(np.concatenate([fine, np.geomspace(1.0, 60.0, 300)]))
+    grid = keep(np.sort(np.concatenate([fine, np.geomspace(1.0, 60.0, 300)])))
     lam, v_out, n = _scan(lambda l: S.score_extra(sincos_x(l)), grid,
                           coarse_all=lambda ls: S.quick_sincos(cmd, 1.0 / ls))
     if lam < 1.0:
         dgrid = np.sort(1.0 / np.linspace(1.0 / lam - 20 * dk, 1.0 / lam + 20 * dk, 41))
     else:
         dgrid = np.geomspace(lam / 1.1, lam * 1.1, 41)
+    dgrid = keep(dgrid)
+    if not dgrid.size:
+        dgrid = np.array([lam])
     lam_d, v_dyn, n2 = _scan(lambda l: S.score_extra(sincos_x_dyn(l)), dgrid,
                               coarse=lambda l: S.quick_extra(sincos_x_dyn(l)))
     # the dynamics form ranks the 1–60 mm grid on its own too: an error through a servo's
@@ -307,7 +387,7 @@ def _periodic_position(S: _Scorer):
     # lies far above any loop, where the inverse only amplifies noise.
     undone = undo_response(S.rfit, hd)
     lam_g, v_g, n3 = _scan(lambda l: S.score_extra(sincos_x_dyn(l)),
-                           np.geomspace(1.0, 60.0, 300),
+                           keep(np.geomspace(1.0, 60.0, 300)),
                            coarse_all=lambda ls: -sincos_rss(undone, cmd[S.fit], 1.0 / ls))
     if v_g > v_dyn:
         lam_d, v_dyn = lam_g, v_g
@@ -316,6 +396,8 @@ def _periodic_position(S: _Scorer):
         form, G, lam = "dynamics", sincos_x_dyn(lam_d), lam_d
     else:
         form, G = "output", sincos_x(lam)
+    if not _apart(1.0 / lam, named, 8.0 * dk):
+        return None
     m = S.with_extra(G)
     w = m.w_mean[-2:]
     return ("periodic_position", form, {"wavelength_mm": float(lam),

@@ -29,7 +29,9 @@ then refined. A kind may have two forms, the one that fits better is taken (the 
   axis dynamics (form ``response``), the force path (form ``force``) or as a following error
   at the output (form ``output``); on an axis with integral action (a servo: real poles in
   its modal fit) also washed out by the integrator in ``integral_s`` (form ``integral``);
-- ``periodic_time`` (``frequency_hz``, ``amplitude_mm``): a sinusoid in time (a fan);
+- ``periodic_time`` (``frequency_hz``, ``amplitude_mm``): a sinusoid in time (a fan), running
+  throughout (form ``time``) or switched on during the log (form ``switched_on``,
+  ``switched_on_s``: catalogue._switched_on);
 - ``periodic_position`` (``wavelength_mm``, ``amplitude_mm``): a sinusoid of the commanded
   position (tooth pitch, screw runout, a stepper's electrical cycle: 0.3–60 mm) through the
   dynamics (``dynamics``) or at the output;
@@ -55,14 +57,16 @@ part. A candidate is named only if all hold:
   that small is below anything a tolerance sees).
 
 α = ``ALPHA``. Up to ``MAX_EFFECTS`` effects are named greedily, each round on what the model
-with the named ones leaves. Among the passing candidates, those whose fit-part SS is within
-crit_fit units of the leader's noise (SS_fit/N_eff) — the fit part cannot tell them apart, as
-on steady motion where a delay, a friction and a backlash are one constant lag — are told
-apart by the held-out part: the one explaining most of it is named. Friction and backlash shift the steady motion alike (a play of width
-b lags like a friction lag b/2); where the held-out part prefers the other one significantly
-(the same held-out statistic between the two), the other is named; if the other one is not
-significantly worse on the held-out part, the effect carries a stated ``tie`` with the other
-kind's parameter.
+with the named ones leaves; a kind once per axis, but ``periodic_time`` and
+``periodic_position`` (catalogue.REPEATABLE: two fans, a tooth pitch and a pulley's runout),
+again only apart from those named (catalogue._apart). Among the passing candidates, those whose
+fit-part SS is within crit_fit units of the leader's noise (SS_fit/N_eff) — the fit part cannot
+tell them apart, as on steady motion where a delay, a friction and a backlash are one constant
+lag — are told apart by the held-out part: the one explaining most of it is named. Friction and
+backlash shift the steady motion alike (a play of width b lags like a friction lag b/2); where
+the held-out part prefers the other one significantly (the same held-out statistic between the
+two), the other is named; if the other one is not significantly worse on the held-out part, the
+effect carries a stated ``tie`` with the other kind's parameter.
 
 **4. Held-out RMS.** Per axis, of the twin's mean prediction (no plant draw) on the held-out
 part: ``before`` with the profile as is, ``after`` with the named effects at their fitted
@@ -86,7 +90,7 @@ from ..twin.model import axis_twin, noise_floor_mm
 from ..twin.physics import RINGING_ZETA, AxisPhysics, axis_physics, log_machine_command
 from ..vm import effects as fx
 from ..vm.plant import respond
-from .catalogue import _candidates, _n_eff, _refine, _scan
+from .catalogue import REPEATABLE, _candidates, _n_eff, _refine, _scan
 from .extend import extend_profile
 
 AXES = ("x", "y")
@@ -100,7 +104,8 @@ DRAW_QUANTILE = 0.999
 MIN_EXPLAINED = 0.2
 #: Held-out RMS a named effect must explain, mm.
 MIN_EFFECT_RMS_MM = 0.001
-MAX_EFFECTS = 3
+#: Effects named at most: a corexy's belt cross-talk takes two (one on each axis).
+MAX_EFFECTS = 4
 FIT_FRACTION = 0.6
 #: A periodic_time within this fraction of a ringing mode's band must beat the mode's ring
 #: (``_ring_bar``).
@@ -453,7 +458,8 @@ def diagnose_arrays(cmd_mm: np.ndarray, meas_mm: np.ndarray, ts_s: float, impuls
     # own spread where that fits better (``_absorb_mode``); candidates are built on the baseline
     bar = {ax: _absorb_mode(A[ax], base[ax]) for ax in AXES}
     named: list[Candidate] = []
-    named_kinds = {ax: set() for ax in AXES}
+    # kind -> the parameters named of it, per axis
+    named_kinds: dict = {ax: {} for ax in AXES}
     all_cands: list[Candidate] = []
     crit_hold = float(stats.chi2.isf(ALPHA, 1))
     for round_ in range(MAX_EFFECTS):
@@ -462,7 +468,7 @@ def diagnose_arrays(cmd_mm: np.ndarray, meas_mm: np.ndarray, ts_s: float, impuls
             other = "y" if ax == "x" else "x"
             for kind, form, params, m, n_tried, q in _candidates(
                     A[ax], base[ax], named_kinds[ax], A[other], base[other]):
-                if kind in named_kinds[ax]:
+                if kind in named_kinds[ax] and kind not in REPEATABLE:
                     continue
                 raw.append((ax, kind, form, params, m, n_tried, q))
         cands = _judge(raw, A, bar, base, fit, hold, K - nfit, crit_hold)
@@ -472,9 +478,10 @@ def diagnose_arrays(cmd_mm: np.ndarray, meas_mm: np.ndarray, ts_s: float, impuls
         if pick is None:
             break
         named.append(pick)
-        named_kinds[pick.axis].add(pick.kind)
+        named_kinds[pick.axis].setdefault(pick.kind, []).append(pick.params)
         if pick.kind in ("friction", "backlash"):  # one of the two per axis (module docstring)
-            named_kinds[pick.axis].update(("friction", "backlash"))
+            for k in ("friction", "backlash"):
+                named_kinds[pick.axis].setdefault(k, [])
         base[pick.axis] = pick.model
         bar[pick.axis] = _absorb_mode(A[pick.axis], pick.model, named_kinds[pick.axis])
 
