@@ -202,14 +202,16 @@ def summary(rows):
         print(f"| {k} | " + " | ".join(cells) + " |")
 
 
-def main():
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seeds", type=int, nargs="*", default=list(range(12)))
+def run_seeds(doc: str, seeds: list, prefix: str, run_seed, print_rows, summary):
+    """A foreign-machine benchmark's command line (``--seeds``, ``--keep``): each seed's rows
+    (``run_seed(seed, folder)``) printed as they come, then all of them and the summary."""
+    ap = argparse.ArgumentParser(description=doc.splitlines()[0])
+    ap.add_argument("--seeds", type=int, nargs="*", default=seeds)
     ap.add_argument("--keep", type=pathlib.Path, default=None,
                     help="write the data sets here (default: a temporary folder)")
     args = ap.parse_args()
     warnings.simplefilter("ignore")
-    base = args.keep or pathlib.Path(tempfile.mkdtemp(prefix="foreign-effects-"))
+    base = args.keep or pathlib.Path(tempfile.mkdtemp(prefix=prefix))
     rows = []
     for seed in args.seeds:
         print(f"\n## {make_machine(seed).describe()}\n", flush=True)
@@ -222,4 +224,4 @@ def main():
 
 
 if __name__ == "__main__":
-    main()
+    run_seeds(__doc__, list(range(12)), "foreign-effects-", run_seed, print_rows, summary)

@@ -20,16 +20,14 @@ A log is **correct** when each true effect is named on its axis with its frequen
 
 from __future__ import annotations
 
-import argparse
 import pathlib
 import sys
-import tempfile
 import time
-import warnings
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(REPO), str(REPO / "benchmarks")]
 
+from foreign_effects import run_seeds  # noqa: E402
 from gcode_feedopt.closedloop.diagnose import diagnose_log  # noqa: E402
 from independent import bench_a_profile, encoder_log  # noqa: E402
 from tests.foreign.machines import make_machine, write_dataset  # noqa: E402
@@ -142,24 +140,5 @@ def summary(rows):
               f"{sum(bool(r['others']) for r in rs)}/{len(rs)} |")
 
 
-def main():
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seeds", type=int, nargs="*", default=list(range(700, 712)))
-    ap.add_argument("--keep", type=pathlib.Path, default=None,
-                    help="write the data sets here (default: a temporary folder)")
-    args = ap.parse_args()
-    warnings.simplefilter("ignore")
-    base = args.keep or pathlib.Path(tempfile.mkdtemp(prefix="foreign-variants-"))
-    rows = []
-    for seed in args.seeds:
-        print(f"\n## {make_machine(seed).describe()}\n", flush=True)
-        new = run_seed(seed, base)
-        print_rows(new)
-        rows += new
-    print("\n## all seeds\n")
-    print_rows(rows)
-    summary(rows)
-
-
 if __name__ == "__main__":
-    main()
+    run_seeds(__doc__, list(range(700, 712)), "foreign-variants-", run_seed, print_rows, summary)

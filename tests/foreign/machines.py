@@ -631,21 +631,18 @@ def write_dataset(mach: Machine, out: pathlib.Path, *, effects: bool = True,
                    header="t,x_cmd,y_cmd,x,y", comments="", fmt="%.6f")
         logs.append({"file": fname, "path": path,
                      "effects": labels or [{"kind": "none", "axis": None, "params": {}}]})
+    # each appended set of logs from a random stream of its own
+    streams = []
     if more_effects:
         rng2 = np.random.default_rng(20_000 + mach.seed)
-        for path, kw, labels in _more_effects(mach, plant, rng2):
-            x_cmd, y_cmd = cmds[path]
-            x, y = respond_xy(mach, plant, x_cmd, y_cmd, ts, rng=rng2, **kw)
-            t = np.arange(len(x_cmd)) * ts
-            fname = f"logs/log_{len(logs) + 1:02d}.csv"
-            np.savetxt(out / fname, np.column_stack([t, x_cmd, y_cmd, x, y]), delimiter=",",
-                       header="t,x_cmd,y_cmd,x,y", comments="", fmt="%.6f")
-            logs.append({"file": fname, "path": path, "effects": labels})
+        streams.append((rng2, _more_effects(mach, plant, rng2)))
     if variants:
         rng3 = np.random.default_rng(40_000 + mach.seed)
-        for path, kw, labels in _variant_effects(mach, plant, rng3, ts):
+        streams.append((rng3, _variant_effects(mach, plant, rng3, ts)))
+    for rs, plan in streams:
+        for path, kw, labels in plan:
             x_cmd, y_cmd = cmds[path]
-            x, y = respond_xy(mach, plant, x_cmd, y_cmd, ts, rng=rng3, **kw)
+            x, y = respond_xy(mach, plant, x_cmd, y_cmd, ts, rng=rs, **kw)
             t = np.arange(len(x_cmd)) * ts
             fname = f"logs/log_{len(logs) + 1:02d}.csv"
             np.savetxt(out / fname, np.column_stack([t, x_cmd, y_cmd, x, y]), delimiter=",",
