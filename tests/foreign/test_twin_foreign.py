@@ -776,6 +776,27 @@ def test_a_written_extension_predicts_what_diagnose_reported(which, kind, source
     assert want < 0.5 * d["holdout_rms_mm"]["before"][ax]
 
 
+def test_two_eccentricities_written_predict_what_diagnose_reported(dataset, tmp_path):
+    """Issue 19, point 4, for two effects of one kind on one axis (belt700's tooth pitch and
+    pulley runout): the profile ``diagnose -o`` writes carries both, and ``predict
+    --no-learn`` with it has the held-out RMS ``diagnose`` reported, within 10 %."""
+    from gcode_feedopt.profile.io import save_profile
+
+    from ..written_extension import diagnose_then_predict
+
+    out, labels, prof = dataset("belt700variants")
+    e = next(e for e in labels["logs"] if e["effects"][0]["kind"] == "periodic_position")
+    ax = e["effects"][0]["axis"]
+    base = save_profile(prof, tmp_path / "base.yaml")
+    d, got = diagnose_then_predict(base, out / "logs" / e["file"].split("/")[-1], tmp_path)
+    assert [(g["kind"], g["axis"]) for g in d["effects"]] == [("periodic_position", ax)] * 2
+    kinds = [x["kind"] for x in load_profile(tmp_path / "ext.yaml").axes[ax].effects]
+    assert kinds == ["periodic_position"] * 2, kinds
+    want = d["holdout_rms_mm"]["after"][ax]
+    assert abs(got[ax] - want) <= 0.1 * want, (got[ax], want)
+    assert want < 0.5 * d["holdout_rms_mm"]["before"][ax]
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("which", ["hotend1once", "servo4once"])
 def test_a_machine_measured_once_is_covered_by_a_typical_spread(which, dataset):
