@@ -28,7 +28,9 @@ then refined. A kind may have two forms, the one that fits better is taken (the 
   relaxes with a time constant τ once the axis stops (τ scanned, 0 = at once), through the
   axis dynamics (form ``response``), the force path (form ``force``) or as a following error
   at the output (form ``output``); on an axis with integral action (a servo: real poles in
-  its modal fit) also washed out by the integrator in ``integral_s`` (form ``integral``);
+  its modal fit) also washed out by the integrator in ``integral_s`` (form ``integral``); or
+  a force of the carriage's own velocity, which sticks it at each reversal: a play of width
+  2·magnitude on the response (form ``stick``, the same model as a backlash ``output``);
 - ``periodic_time`` (``frequency_hz``, ``amplitude_mm``): a sinusoid in time (a fan), running
   throughout (form ``time``) or switched on during the log (form ``switched_on``,
   ``switched_on_s``: catalogue._switched_on);

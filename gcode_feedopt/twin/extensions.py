@@ -15,7 +15,9 @@ way ``diagnose`` fitted it:
   dynamics (``response``), the force response (``force``) or at the output (``output``); on a
   position loop with integral action (a servo) form ``integral``: the force's step at each
   reversal through the force response, washed out by the integrator with time constant
-  ``integral_s`` (:func:`integral_sign`);
+  ``integral_s`` (:func:`integral_sign`); form ``stick``: a force of the carriage's own
+  velocity, which holds it at a reversal until the drive's pull exceeds it: a play of total
+  width 2·``magnitude_mm`` on the response, starting centred (a print starts at rest);
 - ``cross_coupling``: ``mm_per_mm_s2`` times the other axis's predicted acceleration through
   this axis's dynamics (form ``acceleration``, a frame force: the reaction of the other
   carriage's real motion), its commanded acceleration through them (form ``command``: the
@@ -69,7 +71,7 @@ PARAMS = {
                  "lag_s": (-0.1, 0.1), "form": ("input", "output")},
     "friction": {"magnitude_mm": (-10.0, 10.0), "relax_s": (0.0, 1e6),
                  "integral_s": (1e-4, 10.0),
-                 "form": ("response", "force", "output", "integral")},
+                 "form": ("response", "force", "output", "integral", "stick")},
     "cross_coupling": {"from_axis": ("x", "y"), "mm_per_mm_s2": (-1.0, 1.0),
                        "coefficient": (-1.0, 1.0),
                        "form": ("acceleration", "command", "belt", "position")},
@@ -149,6 +151,8 @@ def additive_term(kind: str, params: dict, cmd_mm: np.ndarray, ts_s: float, h: n
             return respond(fx.play(cmd, b), h) - pred + p["offset_mm"] + lag
         return fx.play(pred, b) - pred + p["offset_mm"] + lag
     if kind == "friction":
+        if p["form"] == "stick":
+            return fx.play(pred, 2.0 * p["magnitude_mm"]) - pred
         if p["form"] == "integral":
             s = integral_sign(cmd, ts_s, p["integral_s"])
             return p["magnitude_mm"] * respond(s, h if force_h is None else force_h)

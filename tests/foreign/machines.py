@@ -42,9 +42,10 @@ appends the drive's effects, from a random stream of their own (every other file
 ``backlash`` (a dead band between motor and belt / screw), ``periodic_position`` (an eccentric
 pulley / screw), ``friction`` (a Coulomb force on the carriage / table) and, not on a corexy,
 ``cross_coupling`` (the other axis's acceleration pushing the frame / table): ``_more_effects``
-states each form and label. ``variants=True`` appends effects in forms neither those logs
-nor benchA's have (``_variant_effects``: a fan switched on during the log, two eccentricities
-on one axis). benchmarks/foreign_effects.py judges the diagnosis on them.
+states each form and label. ``variants=True`` appends effects in forms those logs do not
+have (``_variant_effects``: a fan switched on during the log, two eccentricities on one axis,
+and benchA's friction of the carriage's own velocity). benchmarks/foreign_effects.py judges
+the diagnosis on them.
 """
 
 from __future__ import annotations
@@ -349,7 +350,9 @@ def respond_xy(mach: Machine, chans: dict, x_cmd, y_cmd, ts_s: float, *, delay_s
     (a dead band between motor and belt / screw), ``ecc`` {axis: (A mm, λ mm, φ)} (the drive
     sees u + A sin(2π u/λ + φ): pulley / screw eccentricity; a list of such tuples adds
     each). Forces: ``friction`` {axis: F}
-    a Coulomb force −F·tanh(v/0.5 mm/s) of the commanded velocity v on the carriage / table;
+    a Coulomb force −F·tanh(v/0.5 mm/s) of the commanded velocity v on the carriage / table,
+    or {axis: (F, "actual")}: −F·tanh(v/0.1 mm/s) of the carriage's own velocity (benchA's:
+    the carriage sticks at a reversal until the drive's pull exceeds F; belt kinds only);
     ``frame_force`` {axis: (coef, other axis, source)}: coef × the other axis's acceleration
     (mm/s²) on the frame (belt kinds) / table (servo), source ``"command"`` (its commanded
     acceleration) or ``"actual"`` (that of its simulated sensed position: the reaction of the
@@ -398,6 +401,9 @@ def respond_xy(mach: Machine, chans: dict, x_cmd, y_cmd, ts_s: float, *, delay_s
 
 #: friction's velocity scale: sign(v) smoothed as tanh(v / V_FRICTION), mm/s
 V_FRICTION = 0.5
+#: the same for a force of the carriage's own velocity, benchA's: at rest the force lets
+#: the carriage creep in over ~lag / V_FRICTION_ACTUAL
+V_FRICTION_ACTUAL = 0.1
 
 
 def _play_op(u, width):
@@ -436,8 +442,12 @@ def _respond_drive(chans, cmd, steps, ts_s, tf, play, ecc, friction, frame_force
         vel = np.gradient(uf, dt)
         return -friction[ax] * np.tanh(vel / V_FRICTION)
 
+    def sticks(ax):
+        return isinstance(friction.get(ax), tuple) and friction[ax][1] == "actual"
+
     if "a" in chans:
         assert not frame_force, "no frame force on a corexy"
+        assert not any(sticks(ax) for ax in friction), "no carriage-velocity friction on a corexy"
         # friction on the carriage along x pushes both belts' carriages alike, along y
         # oppositely (x = (A + B)/2, y = (A − B)/2)
         wx = coulomb("x") if "x" in friction else 0.0
@@ -452,6 +462,10 @@ def _respond_drive(chans, cmd, steps, ts_s, tf, play, ecc, friction, frame_force
     # an axis pushed by the other's motion after the other
     for ax in sorted("xy", key=lambda a: a in frame_force):
         w, on = None, "frame"
+        if sticks(ax):
+            assert ax not in frame_force and chans[ax].kind != "servo_screw"
+            out[ax] = _sim_fine_stick(chans[ax], u[ax], ts_s, friction[ax][0])
+            continue
         if ax in friction:
             assert ax not in frame_force
             w, on = coulomb(ax), "carriage"
@@ -512,6 +526,38 @@ def _sim_fine(ch: Channel, uf, ts_s, w_fine, force_on: str = "frame"):
     for k in range(K):
         x = PhiR @ x + blocks[k]
         ys[k + 1] = C @ x
+    return uf[0] + ys
+
+
+def _sim_fine_stick(ch: Channel, uf, ts_s, F):
+    """``_sim_fine`` of a belt kind with a Coulomb force −F·tanh(v_c/V) of its carriage's own
+    velocity v_c (state 2) on the carriage, V = V_FRICTION_ACTUAL: stepped one fine step at
+    a time, the force held over each (sub)step; the step is split until F/V·dt/m ≤ 0.2 (the
+    force's slope at rest acts as a damper the explicit step must resolve)."""
+    A, B, C = ch.ss("carriage")
+    n = A.shape[0]
+    V = V_FRICTION_ACTUAL
+    sub = max(1, math.ceil(F / V * (ts_s / R) / ch.p["m"] / 0.2))
+    dt = ts_s / R / sub
+    M = np.zeros((n + 4, n + 4))
+    M[:n, :n] = A * dt
+    M[:n, n:n + 2] = B * dt
+    M[n:n + 2, n + 2:] = np.eye(2)
+    E = expm(M)
+    Phi, G1, G2 = E[:n, :n], E[:n, n:n + 2], E[:n, n + 2:]
+    # the command linear between fine steps, so between substeps too
+    uu = np.interp(np.arange((len(uf) - 1) * sub + 1) / sub, np.arange(len(uf)), uf) - uf[0]
+    du = np.outer(uu[:-1], G1[:, 0] - G2[:, 0]) + np.outer(uu[1:], G2[:, 0])
+    gw = G1[:, 1]
+    K = (len(uf) - 1) // R
+    step = R * sub
+    x = np.zeros(n)
+    ys = np.empty(K + 1)
+    ys[0] = 0.0
+    for j in range(K * step):
+        x = Phi @ x + du[j] - F * math.tanh(x[2] / V) * gw
+        if (j + 1) % step == 0:
+            ys[(j + 1) // step] = C @ x
     return uf[0] + ys
 
 
@@ -737,15 +783,21 @@ def _more_effects(mach: Machine, plant: dict, rng) -> list:
 
 
 def _variant_effects(mach: Machine, plant: dict, rng, ts_s: float) -> list:
-    """[(path, respond_xy keywords, labels)] of effects in forms neither the logs above nor
-    benchA write, each on a random axis:
+    """[(path, respond_xy keywords, labels)] of effects in forms the logs above do not write
+    (the first two, benchA neither), each on a random axis, drawn after the others so that
+    adding one leaves those before as they were:
 
     ``periodic_time``      (not a corexy) a fan switched on 40 % into a rose (benchA's fans run
                            from t = 0): the force from then on, the carriage ringing in;
                            ``amplitude_mm`` 0.008–0.02 the steady amplitude, ``physics.onset_s``;
     ``periodic_position``  twice on one axis: a belt's tooth pitch or a screw's thread (λ
                            1.5–3 mm) and a pulley's or screw's runout (λ 20–45 mm), A 0.006–0.015
-                           mm each, on a Benchy layer: two effects of one kind.
+                           mm each, on a Benchy layer: two effects of one kind;
+    ``friction``           (belt kinds) benchA's form: a Coulomb force −F tanh(v / 0.1 mm/s) of
+                           the carriage's own velocity (the logs above: of the command), on a
+                           rose; the carriage sticks at each reversal until the belt's pull
+                           exceeds F, which on steady motion lags it by ``magnitude_mm``
+                           (0.01–0.04, F × the static compliance, as above).
     """
     out = []
     cmds = bench_a_commands()
@@ -771,6 +823,16 @@ def _variant_effects(mach: Machine, plant: dict, rng, ts_s: float) -> list:
                        "physics": {"applied": "drive sees u + A sin(2 pi u / wavelength + "
                                               "phase), both terms", "phase_rad": round(ph, 4)}})
     out.append(("benchy_layer10", {"ecc": {ax: ecc}}, labels))
+    if mach.kind in ("belt_frame", "belt_hotend"):
+        ax = "xy"[int(rng.integers(2))]
+        mag = round(float(rng.uniform(0.01, 0.04)), 4)
+        F = mag / plant[ax].compliance("carriage")
+        out.append(("rose5", {"friction": {ax: (F, "actual")}},
+                    [{"kind": "friction", "axis": ax, "params": {"magnitude_mm": mag},
+                      "physics": {"applied": "Coulomb force -F tanh(v / 0.1 mm/s) of the "
+                                             "carriage's own velocity; magnitude_mm = F x "
+                                             "static compliance", "force": F,
+                                  "source": "actual", "steady": True}}]))
     return out
 
 

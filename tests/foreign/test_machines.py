@@ -101,7 +101,8 @@ def test_drive_effects_do_what_their_labels_say(kind):
     """The drive's effects (write_dataset's ``more_effects``) at quasi-static conditions: a
     dead band lags a move by half its width, an eccentric pulley offsets a rest by
     A sin(2π u/λ + φ), a Coulomb friction lags a steady move by F × the carriage compliance
-    (benchA's quasi-static lag), a frame force of coef × the other axis's acceleration
+    (benchA's quasi-static lag; of the carriage's own velocity it also holds the carriage
+    inside that band at rest), a frame force of coef × the other axis's acceleration
     displaces this axis by coef × the frame compliance per mm/s²."""
     mach = _quiet(3, kind)
     ch = mach.chans["x"]
@@ -117,6 +118,13 @@ def test_drive_effects_do_what_their_labels_say(kind):
     xf, _ = respond_xy(mach, mach.chans, ramp, y, TS, friction={"x": F})
     i = int(2.6 / TS)                                  # steady motion, 2.4 s into the ramp
     assert abs(x0[i] - xf[i] - 0.03) < 3e-4
+    # the same force of the carriage's own velocity (benchA's): the same steady lag; once
+    # the command stops, the carriage rings without it and with the force of the command's
+    # velocity, and sticks with this one (then creeps in over ~magnitude / V_FRICTION_ACTUAL)
+    xs, _ = respond_xy(mach, mach.chans, ramp, y, TS, friction={"x": (F, "actual")})
+    assert abs(x0[i] - xs[i] - 0.03) < 3e-4
+    after = slice(int((2.7 + 0.02) / TS), int((2.7 + 0.06) / TS))
+    assert np.ptp(xs[after]) < 0.1 * min(np.ptp(x0[after]), np.ptp(xf[after]))
     # y accelerates at a constant 500 mm/s²: x's frame is pushed by a steady force
     ya = 5 + 250 * np.clip(t - 0.2, 0, None) ** 2
     c = 4e-6

@@ -53,3 +53,24 @@ def test_a_long_integral_time_is_the_steady_force_form():
     end = 50 + 299
     assert abs(short[end]) < 1e-3 * abs(steady[end])
     assert "integral" in PARAMS["friction"]["form"]
+
+
+def test_a_friction_that_sticks_lags_a_move_and_holds_through_the_reversal():
+    """Form ``stick`` (a force of the carriage's own velocity): a steady move trails the
+    prediction by the magnitude, and after a reversal the axis stands still until the
+    prediction has come back 2·magnitude, then trails it by the magnitude the other way."""
+    m = 0.02
+    up = np.arange(200) * 20.0 * TS                      # 0 → 7.96 mm at 20 mm/s
+    down = up[-1] - np.arange(1, 200) * 20.0 * TS        # and back
+    cmd = np.concatenate([np.zeros(20), up, down])
+    h = np.zeros(10)
+    h[0] = 1.0                                           # the prediction is the command
+    off = additive_term("friction", {"magnitude_mm": m, "form": "stick"}, cmd, TS, h)
+    assert np.allclose(off[:20], 0.0, atol=1e-12)        # starts centred, at rest
+    assert np.allclose(off[20 + 50:220], -m)             # trailing on the way up
+    stuck = cmd + off
+    top = stuck[219]
+    back = 220 + np.flatnonzero(cmd[220:] < cmd[219] - 2 * m)
+    assert np.allclose(stuck[220:back[0]], top)          # holds while the pull reverses
+    assert np.allclose(off[back[5]:], m)                 # then trails the other way
+    assert "stick" in PARAMS["friction"]["form"]
