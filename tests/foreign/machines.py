@@ -496,19 +496,25 @@ def _fine(u, delay_steps, shaper=None):
     return uf
 
 
+def _foh(A, B, dt):
+    """(Φ, Γ1, Γ2) of x' = A x + B u with u linear over a step dt (first-order hold):
+    x_{j+1} = Φ x_j + (Γ1 − Γ2) u_j + Γ2 u_{j+1}."""
+    n, m = B.shape
+    M = np.zeros((n + 2 * m, n + 2 * m))
+    M[:n, :n] = A * dt
+    M[:n, n:n + m] = B * dt
+    M[n:n + m, n + m:] = np.eye(m)
+    E = expm(M)
+    return E[:n, :n], E[:n, n:n + m], E[:n, n + m:]
+
+
 def _sim_fine(ch: Channel, uf, ts_s, w_fine, force_on: str = "frame"):
     """Response at the sample times (every R-th fine step) to a fine command ``uf`` (linear
     between fine steps: first-order hold, exact) and a force ``w_fine`` (on the frame / the
     carriage: ``Channel.ss``), from rest at uf[0]."""
     A, B, C = ch.ss(force_on)
-    dt = ts_s / R
     n = A.shape[0]
-    M = np.zeros((n + 4, n + 4))
-    M[:n, :n] = A * dt
-    M[:n, n:n + 2] = B * dt
-    M[n:n + 2, n + 2:] = np.eye(2)
-    E = expm(M)
-    Phi, G1, G2 = E[:n, :n], E[:n, n:n + 2], E[:n, n + 2:]
+    Phi, G1, G2 = _foh(A, B, ts_s / R)
     wf = np.zeros_like(uf) if w_fine is None else w_fine[: len(uf)]
     U = np.column_stack([uf - uf[0], wf])
     drive = U[:-1] @ (G1 - G2).T + U[1:] @ G2.T          # x_{j+1} = Phi x_j + drive_j
@@ -538,13 +544,7 @@ def _sim_fine_stick(ch: Channel, uf, ts_s, F):
     n = A.shape[0]
     V = V_FRICTION_ACTUAL
     sub = max(1, math.ceil(F / V * (ts_s / R) / ch.p["m"] / 0.2))
-    dt = ts_s / R / sub
-    M = np.zeros((n + 4, n + 4))
-    M[:n, :n] = A * dt
-    M[:n, n:n + 2] = B * dt
-    M[n:n + 2, n + 2:] = np.eye(2)
-    E = expm(M)
-    Phi, G1, G2 = E[:n, :n], E[:n, n:n + 2], E[:n, n + 2:]
+    Phi, G1, G2 = _foh(A, B, ts_s / R / sub)
     # the command linear between fine steps, so between substeps too
     uu = np.interp(np.arange((len(uf) - 1) * sub + 1) / sub, np.arange(len(uf)), uf) - uf[0]
     du = np.outer(uu[:-1], G1[:, 0] - G2[:, 0]) + np.outer(uu[1:], G2[:, 0])
