@@ -110,7 +110,10 @@ def _effect_s(e) -> str:
 
 def _other_s(e) -> str:
     num = {k: v for k, v in e["params"].items() if isinstance(v, float) and k != "phase_rad"}
-    return f"{e['kind']} {e['axis']} " + " ".join(f"{k}={v:.4g}" for k, v in num.items())
+    s = f"{e['kind']} {e['axis']} " + " ".join(f"{k}={v:.4g}" for k, v in num.items())
+    if "tie" in e["params"]:
+        s += f" (tie: {_other_s({**e['params']['tie'], 'axis': e['axis']})})"
+    return s
 
 
 def print_rows(rows):

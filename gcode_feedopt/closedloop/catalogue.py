@@ -471,7 +471,8 @@ def _friction(S: _Scorer):
     until the drive's pull exceeds the force: quasi-statically, a play of total width
     2·magnitude on the response (form ``stick``, the magnitude scanned as a backlash's width,
     unit weight). A backlash on the response (its form ``output``, with a free offset) is the
-    same model: where both explain the log alike, the choice carries the stated tie. On the
+    same model: where the held-out part cannot tell them apart the backlash is named and
+    the friction stated as its tie (diagnose._choose). On the
     foreign belt machines' such frictions (benchmarks/foreign_variants.py) the steady forms
     sized them 14 % low or missed them; benchA's friction keeps its ``force`` form."""
     A, cmd, ts, fit, hd = S.A, S.cmd, S.ts, S.fit, S.hd

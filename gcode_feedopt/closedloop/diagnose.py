@@ -30,7 +30,8 @@ then refined. A kind may have two forms, the one that fits better is taken (the 
   at the output (form ``output``); on an axis with integral action (a servo: real poles in
   its modal fit) also washed out by the integrator in ``integral_s`` (form ``integral``); or
   a force of the carriage's own velocity, which sticks it at each reversal: a play of width
-  2·magnitude on the response (form ``stick``, the same model as a backlash ``output``);
+  2·magnitude on the response (form ``stick``, the same model as a backlash ``output``:
+  where the held-out part cannot tell them apart, the backlash is named, the friction tied);
 - ``periodic_time`` (``frequency_hz``, ``amplitude_mm``): a sinusoid in time (a fan), running
   throughout (form ``time``) or switched on during the log (form ``switched_on``,
   ``switched_on_s``: catalogue._switched_on);
@@ -616,6 +617,13 @@ def _choose(cands: list, fit, hold, n_hold: int, crit_hold: float) -> Candidate 
             ne_h = _n_eff(pick.model.resid[hold]) if n_hold > 3 else 1.0
             t = (rival.ss_hold - pick.ss_hold) / max(pick.ss_hold / ne_h, 1e-30)
             if t <= crit_hold:
+                # a friction that sticks and a backlash on the response are one model (a play
+                # on the response): which one leads is a hair of the held-out part, so one
+                # convention, the backlash named (its form came first: our virtual machine's
+                # play) and the friction stated as the tie
+                if (pick.kind, pick.form, rival.kind, rival.form) == \
+                        ("friction", "stick", "backlash", "output") and rival.passes:
+                    pick, rival = rival, pick
                 pick.params = {**pick.params, "tie": {"kind": rival.kind,
                                                       "params": dict(rival.params)}}
     return pick
