@@ -101,12 +101,20 @@ def why_not(truth, cands) -> str:
     return (f"cand. #{rank} {k}={vs} [{c.form}]: " + (", ".join(fails) or "passes"))
 
 
-def run_seed(seed: int, base: pathlib.Path) -> list:
+def write_seed(seed: int, base: pathlib.Path, **logs) -> tuple:
+    """(machine, folder, labels, profile, inherent (kind, axis)) of a seed's machine written
+    under ``base`` with its clean logs and ``write_dataset``'s ``logs`` keywords, the profile
+    built from its FRFs as a user would."""
     mach = make_machine(seed)
     out = base / f"foreign-{seed}"
-    labels = write_dataset(mach, out, effects=False, more_effects=True)
+    labels = write_dataset(mach, out, effects=False, **logs)
     prof = bench_a_profile(out, out.name)
     inherent = {(e["kind"], e["axis"]) for e in labels["inherent"]}
+    return mach, out, labels, prof, inherent
+
+
+def run_seed(seed: int, base: pathlib.Path) -> list:
+    mach, out, labels, prof, inherent = write_seed(seed, base, more_effects=True)
     size = effect_rms_um(mach, labels, out)
     rows = []
     for e in labels["logs"]:

@@ -30,10 +30,9 @@ import time
 REPO = pathlib.Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(REPO), str(REPO / "benchmarks")]
 
-from foreign_effects import run_seeds  # noqa: E402
+from foreign_effects import run_seeds, write_seed  # noqa: E402
 from gcode_feedopt.closedloop.diagnose import diagnose_log  # noqa: E402
-from independent import bench_a_profile, encoder_log  # noqa: E402
-from tests.foreign.machines import make_machine, write_dataset  # noqa: E402
+from independent import encoder_log  # noqa: E402
 
 #: the variant logs' kinds, and what a named effect is matched to its truth by
 KEY = {"periodic_time": "frequency_hz", "periodic_position": "wavelength_mm",
@@ -76,11 +75,7 @@ def judge(truths: list, got: list, inherent: set) -> dict:
 
 
 def run_seed(seed: int, base: pathlib.Path) -> list:
-    mach = make_machine(seed)
-    out = base / f"foreign-{seed}"
-    labels = write_dataset(mach, out, effects=False, variants=True)
-    prof = bench_a_profile(out, out.name)
-    inherent = {(e["kind"], e["axis"]) for e in labels["inherent"]}
+    mach, out, labels, prof, inherent = write_seed(seed, base, variants=True)
     rows = []
     for e in labels["logs"]:
         if e["effects"][0]["kind"] not in KEY:
