@@ -11,7 +11,7 @@ simulated elsewhere) is in test_diagnose_bench_a.py.
 import numpy as np
 import pytest
 
-from gcode_feedopt.closedloop.catalogue import sincos_rss, undo_response
+from gcode_feedopt.closedloop.catalogue import _walk, sincos_rss, undo_response
 from gcode_feedopt.closedloop.diagnose import KINDS, diagnose_arrays, leftover
 from gcode_feedopt.twin.physics import axis_physics
 from gcode_feedopt.closedloop.motion import point_to_point
@@ -185,6 +185,30 @@ def test_sincos_rss_is_the_least_squares_fit():
         got = sincos_rss(r, u, freqs)
         np.testing.assert_allclose(got, want, rtol=1e-9)
         assert np.argmin(got) == 1 and got[1] / K == pytest.approx(1.0, rel=0.1)
+
+
+def test_a_walking_scan_follows_a_best_at_its_grid_edge():
+    """catalogue._walk: a maximum past the grid's edge (1.3, the grid 0–1) is reached by
+    re-centring the grid on the edge, then refined to it; one inside the grid is found
+    without walking (the points tried: the grid and the refinement's 33); one beyond reach
+    stops after ``walks`` grids, at the last one's edge (within the refinement's steps)."""
+    calls = []
+
+    def f(c):
+        def ev(p):
+            calls.append(p)
+            return -(p - c) ** 2
+        return ev
+
+    grid = np.linspace(0.0, 1.0, 9)
+    p, v, n = _walk(f(1.3), grid)
+    assert p == pytest.approx(1.3, abs=1e-3) and n == len(calls) == 2 * 9 + 33
+    calls.clear()
+    p, _, n = _walk(f(0.4), grid)
+    assert p == pytest.approx(0.4, abs=1e-3) and n == len(calls) == 9 + 33
+    calls.clear()
+    p, _, n = _walk(f(10.0), grid, walks=4)
+    assert p == pytest.approx(2.5, abs=0.02) and n == len(calls) == 4 * 9 + 33
 
 
 def test_undo_response_inverts_where_the_response_carries_the_signal():

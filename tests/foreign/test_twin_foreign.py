@@ -193,6 +193,10 @@ SETS = {
     "hotend711variants": (711, "variants"),
     # belt + frame, x 30.3 Hz ζ 0.034, y 41.9 Hz: y's frame pushed by x's carriage, which rings
     "belt23more": (23, "more"),
+    # belt + frame, x 36.3 Hz ζ 0.075: a fan at 32.2 Hz on x switched on during a rose
+    "belt712variants": (712, "variants"),
+    # belt + hotend, y 24.4 Hz ζ 0.023: a fan at 21.5 Hz on y switched on during a rose
+    "hotend722variants": (722, "variants"),
 }
 #: sets whose machine is drawn as another kind than its seed's own: name -> kind
 KIND = {
@@ -594,6 +598,29 @@ def test_a_fan_switched_on_during_the_log_is_named_with_its_steady_amplitude(dat
     tv = truth["params"]["amplitude_mm"]
     assert abs(g["params"]["amplitude_mm"] - tv) <= 0.05 * tv, (truth, g)
     assert abs(g["params"]["switched_on_s"] - truth["physics"]["onset_s"]) < 0.02, (truth, g)
+    assert len(d.effects) == 1, d.effects
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("which, tol_hz", [("belt712variants", 0.1), ("hotend722variants", 0.12)])
+def test_a_fan_switched_on_beside_a_mode_is_named_at_its_frequency(which, tol_hz, dataset):
+    """A fan switched on a few Hz below a mode of its axis (belt712: 32.2 Hz, x's mode 36.3 Hz
+    ζ 0.075; hotend722: 21.5 Hz, y's 24.4 Hz ζ 0.023): over the part of the fit part the fan
+    ran, its spectral peak leans toward the mode's ring by more than the ±2 bins the
+    frequency was scanned over. The grid's edge was taken: 712's fan named 0.143 Hz off
+    (held out 7.8 → 6.3 µm), 722's missed (the sinusoid 0.34 Hz off lost its phase over the
+    held-out part). The scan follows a best at its edge (catalogue._walk) and scores the
+    frequency on what the plant draw leaves, which takes out the ring of the twin's mode a
+    little off the plant's (against the mean 722's came out +0.144 Hz): named on its axis as
+    switched on, 712 within 0.1 Hz (+0.055), 722 within 0.12 Hz (+0.091), the steady
+    amplitude within 20 % (+4.2, +16.6 %: the carriage rings in, which the gated sinusoid
+    does not model), nothing else named."""
+    truths, got, d = _variant(dataset(which), "periodic_time")
+    (truth,), (g,) = truths, got
+    assert g["axis"] == truth["axis"] and g["form"] == "switched_on", d.effects
+    assert abs(g["params"]["frequency_hz"] - truth["params"]["frequency_hz"]) < tol_hz, g
+    tv = truth["params"]["amplitude_mm"]
+    assert abs(g["params"]["amplitude_mm"] - tv) <= 0.2 * tv, (truth, g)
     assert len(d.effects) == 1, d.effects
 
 
