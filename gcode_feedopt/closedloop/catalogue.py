@@ -633,7 +633,24 @@ def _cross_coupling(S: _Scorer, other: _Axis):
     """The other axis's motion: its predicted acceleration (its carriage's reaction, ringing
     included), its commanded one (a motor force that follows the command, tests/foreign
     cross_coupling_cmd), the predicted one twice through the dynamics (a corexy's belts) or
-    its position; the form that fits best."""
+    its position; where the modal fit shows the antiresonance of the frame the motor rides
+    on, the predicted and the commanded one through the axis's response to a force on that
+    frame (``twin.physics.frame_model``: forms ``frame``, ``frame_command``); the form
+    that fits best.
+
+    The frame forms: the other carriage's reaction pushes the frame, which reaches the nozzle
+    along the whole chain (frame, belt, carriage, hotend) without the command path's
+    antiresonance, so it rings more near the modes than the command's response: on the
+    belt + hotend machines of tests/foreign (seeds 800–806) the command-path forms sized it
+    +5 … +63 % high (625 y at 30 Hz: |H_frame| 6.37 against |H_cmd| 5.14).
+
+    The weight is the one fitted jointly with the plant draw (``theta``), not against the
+    twin's mean alone as every other kind's: the other axis's motion through this axis's
+    modes is much like this axis's own motion through a stiffer or softer machine, so against
+    the mean it takes up the mean's own miss. benchA's frame force (3e-6, its frame at 100 Hz
+    behind a 36 Hz mode) came out −0.3 % through the command path against the mean — two
+    errors cancelling: through the frame −12.8 % against the mean, +2.0 % with the draw;
+    tests/foreign 805: +60.6 % → +40 % → +2.5 %."""
     ts, hd = S.ts, S.hd
     po = other.p0
 
@@ -643,9 +660,14 @@ def _cross_coupling(S: _Scorer, other: _Axis):
     G_acc = respond(acc(po), hd)[:, None]
     forms = {"acceleration": G_acc, "command": respond(other.cmd_acc, hd)[:, None],
              "belt": respond(G_acc[:, 0], hd)[:, None], "position": (po - po[0])[:, None]}
+    fh = S.A.phys.frame
+    if fh is not None:
+        forms["frame"] = respond(acc(po), fh)[:, None]
+        forms["frame_command"] = respond(other.cmd_acc, fh)[:, None]
     score = {form: S.score_extra(G) for form, G in forms.items()}
     form = max(forms, key=lambda f: score[f])     # ties: the first, in the order above
     m = S.with_extra(forms[form])
     name = "coefficient" if form == "position" else "mm_per_mm_s2"
-    params = {"from_axis": other.ax, name: float(m.w_mean[-1]), "form": form}
+    # sized with the plant draw fitted beside it (the only kind so sized: docs/diagnose.md)
+    params = {"from_axis": other.ax, name: float(m.theta[-1]), "form": form}
     return ("cross_coupling", form, params, m, len(forms), 2)

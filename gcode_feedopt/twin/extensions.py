@@ -23,8 +23,10 @@ way ``diagnose`` fitted it:
   carriage's real motion), its commanded acceleration through them (form ``command``: the
   reaction of a motor force that follows the other axis's command, as a stiff servo's does,
   not its carriage's ringing), the predicted one through them twice (form ``belt``: a
-  corexy whose two belts differ, see below), or ``coefficient`` times the other axis's
-  predicted motion (form ``position``);
+  corexy whose two belts differ, see below), the predicted or the commanded one through the
+  axis's response to a force on its frame (forms ``frame`` and ``frame_command``:
+  ``twin.physics.frame_model``, the command path's antiresonance taken out), or
+  ``coefficient`` times the other axis's predicted motion (form ``position``);
 - ``gain``: besides its change of the response (about the first commanded sample, where the
   twin works), the constant (s − 1)·x_0 that a scale about the machine origin adds.
 
@@ -74,7 +76,8 @@ PARAMS = {
                  "form": ("response", "force", "output", "integral", "stick")},
     "cross_coupling": {"from_axis": ("x", "y"), "mm_per_mm_s2": (-1.0, 1.0),
                        "coefficient": (-1.0, 1.0),
-                       "form": ("acceleration", "command", "belt", "position")},
+                       "form": ("acceleration", "command", "belt", "position", "frame",
+                                "frame_command")},
 }
 #: parameters a kind must have (the rest default as in ``DEFAULTS``)
 REQUIRED = {
@@ -125,7 +128,8 @@ def lag_regressor(pred_mm: np.ndarray, ts_s: float) -> np.ndarray:
 def additive_term(kind: str, params: dict, cmd_mm: np.ndarray, ts_s: float, h: np.ndarray, *,
                   other_pred_mm: np.ndarray | None = None, force_h: np.ndarray | None = None,
                   pred_mm: np.ndarray | None = None,
-                  other_cmd_mm: np.ndarray | None = None) -> np.ndarray:
+                  other_cmd_mm: np.ndarray | None = None,
+                  frame_h: np.ndarray | None = None) -> np.ndarray:
     """(K,) the deterministic term one extension adds to an axis's predicted position, mm.
 
     Args:
@@ -133,6 +137,8 @@ def additive_term(kind: str, params: dict, cmd_mm: np.ndarray, ts_s: float, h: n
         other_pred_mm: (K,) the other axis's predicted position (cross_coupling).
         other_cmd_mm: (K,) the other axis's commanded position (cross_coupling form ``command``).
         force_h: (n,) the force response (friction form ``force``; else ``h`` is used).
+        frame_h: (n,) the frame response (cross_coupling forms ``frame``, ``frame_command``;
+            else ``h`` is used).
         pred_mm: (K,) the axis's prediction, for the ``output`` forms (default h * cmd).
     """
     p = {**DEFAULTS.get(kind, {}), **params}
@@ -161,12 +167,14 @@ def additive_term(kind: str, params: dict, cmd_mm: np.ndarray, ts_s: float, h: n
             return p["magnitude_mm"] * s
         return p["magnitude_mm"] * respond(s, force_h if p["form"] == "force" and force_h is not None else h)
     if kind == "cross_coupling":
-        src = other_cmd_mm if p["form"] == "command" else other_pred_mm
+        src = other_cmd_mm if p["form"] in ("command", "frame_command") else other_pred_mm
         if src is None:
             return np.zeros(K)
         po = np.asarray(src, float)
-        if p["form"] in ("acceleration", "command", "belt"):
+        if p["form"] in ("acceleration", "command", "belt", "frame", "frame_command"):
             acc = np.gradient(np.gradient(po, ts_s), ts_s)
+            if p["form"] in ("frame", "frame_command"):
+                return p["mm_per_mm_s2"] * respond(acc, h if frame_h is None else frame_h)
             g = respond(acc, h)
             return p["mm_per_mm_s2"] * (respond(g, h) if p["form"] == "belt" else g)
         return p["coefficient"] * (po - po[0])
@@ -210,7 +218,8 @@ def mean_offsets(profile, cmd_mm: np.ndarray) -> np.ndarray:
             out[:, i] += additive_term(e["kind"], e["params"], cmd[:, i], profile.ts_s, h[ax],
                                        other_pred_mm=preds.get(other), force_h=fh,
                                        pred_mm=preds[ax],
-                                       other_cmd_mm=_column(cmd, axes, other))
+                                       other_cmd_mm=_column(cmd, axes, other),
+                                       frame_h=_frame_h(profile, ax, e))
     return out
 
 
@@ -241,15 +250,17 @@ def motion_offsets(profile):
     # samples) and once or twice through the dynamics: what a window must remember
     memory = (2 if twice else 1) * max(v.size for v in h.values()) + 4
 
+    frame = [_frame_h(profile, ax, e) for _, ax, e in todo]
+
     def offsets(cmd_mm):
         cmd = np.asarray(cmd_mm, float)
         out = np.zeros((cmd.shape[0], 2))
         preds = {ax: respond(cmd[:, i], h[ax]) for i, ax in enumerate(axes)}
-        for i, ax, e in todo:
+        for (i, ax, e), fr in zip(todo, frame):
             other = e["params"].get("from_axis")
             out[:, i] += additive_term(e["kind"], e["params"], cmd[:, i], profile.ts_s, h[ax],
                                        other_pred_mm=preds.get(other), pred_mm=preds[ax],
-                                       other_cmd_mm=_column(cmd, axes, other))
+                                       other_cmd_mm=_column(cmd, axes, other), frame_h=fr)
         return out
 
     return offsets, memory
@@ -263,3 +274,13 @@ def _column(cmd: np.ndarray, axes, axis):
 def _force_h(profile, axis):
 
     return axis_physics(profile)[axis].force
+
+
+def _frame_h(profile, axis, effect):
+    """The axis's frame response where ``effect`` is a cross-coupling of a frame form, else
+    None. A profile whose fit has no antiresonance (``AxisPhysics.frame`` None) cannot have
+    been diagnosed such a form; one edited by hand to it gets the command path's response."""
+    if effect["kind"] != "cross_coupling" or effect["params"].get("form") not in (
+            "frame", "frame_command"):
+        return None
+    return axis_physics(profile)[axis].frame

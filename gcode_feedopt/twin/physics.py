@@ -337,6 +337,9 @@ class AxisPhysics:
             it (modal physics), or None (then only the frequency-rescaled form is tried).
         force: (n,) response of the axis to a force on its carriage, unit DC gain: the modes
             without the residues' damping zeros (b1 = 0, no direct part), or None.
+        frame: (n,) response of the axis to a force on the frame that carries its motor,
+            unit DC gain (``frame_model``), or None where the modal fit has no antiresonance
+            to take out or has real poles (a servo's loop: its table force goes through it).
         integral_action: the modal fit has real poles (a pair with ζ > 1), which a position
             loop with integral action (a servo's PID) puts below its bandwidth: such a loop
             washes a steady force out (``twin.extensions.integral_sign``).
@@ -356,6 +359,7 @@ class AxisPhysics:
     mode_hz: float
     shifted: Callable[[float], np.ndarray] | None = None
     force: np.ndarray | None = None
+    frame: np.ndarray | None = None
     mode_span_hz: tuple[float, float] | None = None
     mode_scan_hz: tuple[float, float] | None = None
     mode_zeta: float | None = None
@@ -476,6 +480,10 @@ def axis_physics(profile) -> dict:
 
             mode = f_dom
             force = _force_response(mm, ts, n)
+            band = np.asarray(profile.axes[ax].frf.freq_hz, float)
+            frame = None
+            if not np.any(mm.damping >= 1.0):
+                frame = _frame_response(mm, ts, n, float(np.max(band)))
             # the members' own dominant modes: how far the known uncertainty moves it
             # (the same mode in each, matched mode to mode: AxisModal.member_modes; which mode
             # is largest may differ between members of two near-equal modes)
@@ -488,14 +496,14 @@ def axis_physics(profile) -> dict:
             zeta = float(mm.damping[dom])
             integral = bool(np.any(mm.damping > 1.0))
             model, members = mm, tuple(ft.model for ft in fits.fits)
-            band = np.asarray(profile.axes[ax].frf.freq_hz, float)
         else:
             model, members, band = None, (), None
             mode = dominant_mode_hz(mean, profile.ts_s)
-            force = None
+            force = frame = None
             span = scan = zeta = None
             integral = False
         out[ax] = AxisPhysics(mean=mean, factor=L, mode_hz=mode, shifted=shifted, force=force,
+                              frame=frame,
                               mode_span_hz=span, mode_scan_hz=scan, mode_zeta=zeta,
                               integral_action=integral,
                               model=model, members=members, band_hz=band)
@@ -512,3 +520,80 @@ def _force_response(model, ts_s: float, n_taps: int):
                     lag_s=0.0, dc_gain=g, delay_s=0.0)
     h = mf.impulse(ts_s, n_taps)
     return h / np.sum(h)
+
+
+#: damping above which a complex zero pair of a modal fit is no antiresonance (``frame_model``)
+ANTIRESONANCE_ZETA = 0.3
+
+
+def _frame_response(model, ts_s: float, n_taps: int, band_hi_hz: float):
+    """(n,) unit-DC impulse response of ``frame_model``, or None where it is None."""
+    mf = frame_model(model, band_hi_hz)
+    if mf is None:
+        return None
+    h = mf.impulse(ts_s, n_taps)
+    return h / np.sum(h)
+
+
+def frame_model(model, band_hi_hz: float):
+    """The axis's response to a force on the frame that carries its motor, unit DC gain: a
+    ModalModel with ``model``'s modes, or None.
+
+    The command enters a belt drive between the frame and the carriage: the motor pulls the
+    belt against the frame it sits on. Seen from the command, the frame is a side branch of
+    the chain, and the chain's response has a zero pair where that branch alone would
+    resonate (the measured FRF's antiresonance). A force on the frame enters at the end of
+    the chain (frame, belt, carriage, hotend): its response has the same poles without that
+    pair (undamped, a chain driven at one end and sensed at the other has no zeros; the
+    springs' dampers leave real zeros far above the modes, which stay). So: ``model`` with
+    its lowest lightly damped (ζ < ANTIRESONANCE_ZETA), minimum-phase complex zero pair at
+    or below ``band_hi_hz`` (the measured band's top) taken out, and without the first-order
+    lag of the command path (the motor's). None where the model has no such pair, or the
+    rest is no response (its static share ≤ 0.1). On the belt machines of tests/foreign the
+    fits put that zero within 0.5 % of the frame's own frequency (seeds 800–806). A servo's
+    table force enters through its PID loop: ``axis_physics`` does not ask for it there."""
+    w = 2 * np.pi * np.asarray(model.freq_hz, float)
+    z = np.asarray(model.damping, float)
+    if w.size == 0:
+        return None
+    w0 = float(np.max(w))                       # polynomials in s / w0: well scaled
+    wn = w / w0
+    dens = [np.array([1.0, 2 * zi * wi, wi * wi]) for wi, zi in zip(wn, z)]
+
+    def prod(ps):
+        out = np.array([1.0])
+        for q in ps:
+            out = np.polymul(out, q)
+        return out
+
+    num = model.direct * prod(dens)
+    for i, (b1, b0) in enumerate(zip(model.b1_rad_s, model.b0)):
+        num = np.polyadd(num, np.polymul([b1 / w0, b0 * wn[i] ** 2],
+                                         prod(d for j, d in enumerate(dens) if j != i)))
+    num = np.trim_zeros(num, "f")
+    if num.size < 3:
+        return None
+    cand = [r for r in np.roots(num) if r.imag > 1e-9 and r.real < 0
+            and -r.real / abs(r) < ANTIRESONANCE_ZETA and abs(r) * w0 / (2 * np.pi) <= band_hi_hz]
+    if not cand:
+        return None
+    r = min(cand, key=abs)
+    num2, _ = np.polydiv(num, np.array([1.0, -2 * r.real, abs(r) ** 2]))
+    # partial fractions of num2 / Π dens, mode by mode: b1·s + b0·w² at both roots of its pair
+    b1 = np.zeros(w.size)
+    b0 = np.zeros(w.size)
+    with np.errstate(all="ignore"):
+        for i, d in enumerate(dens):
+            p = np.roots(d)
+            rest = prod(dd for j, dd in enumerate(dens) if j != i)
+            rhs = np.polyval(num2, p) / np.polyval(rest, p)
+            if not np.all(np.isfinite(rhs)):          # a repeated pole: no such fraction
+                return None
+            M = np.column_stack([p, np.full(2, wn[i] ** 2)]).astype(complex)
+            sol = np.linalg.lstsq(M, rhs, rcond=None)[0]
+            b1[i], b0[i] = np.real(sol[0]) * w0, np.real(sol[1])
+    g = float(np.sum(b0))
+    if not np.all(np.isfinite(b1)) or not np.isfinite(g) or g <= 0.1:
+        return None
+    return ModalModel(model.freq_hz, model.damping, b1 / g, b0 / g, lag_s=0.0, dc_gain=1.0,
+                      delay_s=0.0)

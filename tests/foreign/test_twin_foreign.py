@@ -201,6 +201,11 @@ SETS = {
     "belt712variants": (712, "variants"),
     # belt + hotend, y 24.4 Hz ζ 0.023: a fan at 21.5 Hz on y switched on during a rose
     "hotend722variants": (722, "variants"),
+    # belt + hotend, x 26.9 Hz ζ 0.032, frame 73.8 Hz: x's frame pushed by y's carriage
+    "hotend802more": (802, "more"),
+    # belt + hotend, x 26.8 Hz ζ 0.047, frame 81.7 Hz, 3 FRFs, sensor σ 1.9 µm: x's frame
+    # pushed as y's motor is commanded
+    "hotend805more": (805, "more"),
 }
 #: sets whose machine is drawn as another kind than its seed's own: name -> kind
 KIND = {
@@ -817,16 +822,37 @@ def test_a_dead_band_in_a_servo_drive_is_named_with_its_width(which, dataset):
 def test_a_frame_pushed_by_the_other_axiss_command_is_named(which, dataset):
     """A force on the frame that follows the other axis's *commanded* acceleration
     (machines._more_effects ``cross_coupling_cmd``): named cross_coupling on its axis in form
-    ``command`` with its size within 12 % — on every belt machine of seeds 0–23 (7/7, worst
-    +10.6 %; benchmarks/foreign_effects.py). The predicted-acceleration regressor alone
-    missed both (its x rings where the command does not) and sized the others 25–76 % low."""
+    ``command`` or ``frame_command`` (through the frame's path), its size within 6 % — on
+    every belt machine of seeds 0–23 (7/7, worst +5.0 %; through the command path only and
+    sized against the twin's mean, worst +10.6 %; benchmarks/foreign_effects.py). The
+    predicted-acceleration regressor alone missed both (its x rings where the command does
+    not) and sized the others 25–76 % low."""
     truth, g, d = _named(dataset(which), "cross_coupling", source="command")
     assert g is not None, (truth, d.effects)
-    assert g["params"]["form"] == "command"
+    assert g["params"]["form"] in ("command", "frame_command"), g
     assert g["params"]["from_axis"] == truth["params"]["from_axis"]
     tv = truth["params"]["mm_per_mm_s2"]
-    assert abs(g["params"]["mm_per_mm_s2"] - tv) <= 0.12 * tv, (truth, g)
+    assert abs(g["params"]["mm_per_mm_s2"] - tv) <= 0.06 * tv, (truth, g)
     assert all(g["kind"] == "cross_coupling" for g in d.effects), d.effects
+
+
+@pytest.mark.parametrize("which, source, form", [
+    ("hotend802more", "actual", "frame"), ("hotend805more", "command", "frame_command")])
+def test_a_frame_force_is_sized_through_the_frames_path(which, source, form, dataset):
+    """A belt + hotend machine's frame pushed by the other axis (its carriage's reaction, or
+    a force that follows its motor's command): the force reaches the nozzle along the whole
+    chain, without the command path's antiresonance (twin.physics.frame_model), and the
+    weight is fitted with the plant draw beside it (catalogue._cross_coupling). Named in the
+    frame form, from the right axis, its size within 5 % — through the command path,
+    against the twin's mean, it came out +26.0 % (802) and +62.9 % (805) high; through the
+    frame's path against the mean +2.4 % and +51.5 % (benchmarks/foreign_effects.py)."""
+    truth, g, d = _named(dataset(which), "cross_coupling", source=source)
+    assert g is not None, (truth, d.effects)
+    assert g["params"]["form"] == form, g
+    assert g["params"]["from_axis"] == truth["params"]["from_axis"]
+    tv = truth["params"]["mm_per_mm_s2"]
+    assert abs(g["params"]["mm_per_mm_s2"] - tv) <= 0.05 * tv, (truth, g)
+    assert [(e["kind"], e["axis"]) for e in d.effects] == [("cross_coupling", truth["axis"])]
 
 
 def test_a_servos_friction_is_named_as_its_integrator_sees_it(dataset):
@@ -847,19 +873,20 @@ def test_a_servos_friction_is_named_as_its_integrator_sees_it(dataset):
 
 
 @pytest.mark.parametrize("which, kind, source, form", [
-    ("belt14more", "cross_coupling", "command", "command"),
+    ("belt14more", "cross_coupling", "command", "frame_command"),
+    ("hotend802more", "cross_coupling", "actual", "frame"),
     ("servo8more", "friction", None, "integral"),
     ("servo5more", "backlash", None, "input"),
     ("hotend708variants", "friction", None, "stick")])
 def test_a_written_extension_predicts_what_diagnose_reported(which, kind, source, form,
                                                              dataset, tmp_path):
-    """Issue 19, point 4, for the ``command`` form of a cross-coupling, the ``integral``
-    form of a servo's friction, a servo's backlash with its twin's lag error and a friction
-    that sticks: the profile ``diagnose -o`` writes, loaded back and run by ``predict
-    --no-learn``, has the held-out RMS ``diagnose`` reported, within 10 % (each term is
-    computed in predict as in diagnose: from the other axis's command; through the force
-    response, washed out in the fitted ``integral_s``; the lag −``lag_s``·v̂ of the twin's
-    own prediction; the play of twice the lag on it)."""
+    """Issue 19, point 4, for the ``frame_command`` and ``frame`` forms of a cross-coupling, the
+    ``integral`` form of a servo's friction, a servo's backlash with its twin's lag error
+    and a friction that sticks: the profile ``diagnose -o`` writes, loaded back and run by
+    ``predict --no-learn``, has the held-out RMS ``diagnose`` reported, within 10 % (each
+    term is computed in predict as in diagnose: from the other axis's command, through the
+    frame response; through the force response, washed out in the fitted ``integral_s``; the
+    lag −``lag_s``·v̂ of the twin's own prediction; the play of twice the lag on it)."""
     from gcode_feedopt.profile.io import save_profile
 
     from ..written_extension import diagnose_then_predict

@@ -90,3 +90,38 @@ def test_a_command_form_coupling_follows_the_other_axiss_command():
     acc = additive_term("cross_coupling", {**cmd_e["params"], "form": "acceleration"},
                         cmd[:, 1], ts, hy, other_pred_mm=pred_x, other_cmd_mm=cmd[:, 0])
     assert np.abs(acc - want).max() > 0.1 * np.abs(want).max()
+
+
+def test_a_frame_form_coupling_goes_through_the_frames_response():
+    """Forms ``frame`` / ``frame_command``: the other axis's predicted / commanded
+    acceleration through this axis's response to a force on its frame
+    (twin.physics.frame_model; ender3pro's fit has the antiresonance it takes out): the
+    closed form, the same in ``predict``'s mean (mean_offsets) and the plan's
+    (motion_offsets), and not the command path's term."""
+    from gcode_feedopt.twin.extensions import mean_offsets
+    from gcode_feedopt.twin.physics import axis_impulse, axis_physics
+    from gcode_feedopt.vm.plant import respond
+
+    prof, _, path = _setup()
+    sch = plan_schedule("kinematic", path, prof, tolerance_mm=0.1, stringency=0.95)
+    cmd = path.position(sch.s_mm)[:, :2]
+    ts = prof.ts_s
+    frame_y = axis_physics(prof)["y"].frame
+    assert frame_y is not None
+    hx, hy = (np.asarray(axis_impulse(prof, a).mean) for a in "xy")
+    hx, hy = hx / hx.sum(), hy / hy.sum()
+
+    def acc(p):
+        return np.gradient(np.gradient(p, ts), ts)
+
+    for form, src in (("frame", respond(cmd[:, 0], hx)), ("frame_command", cmd[:, 0])):
+        e = {"kind": "cross_coupling", "axis": "y",
+             "params": {"from_axis": "x", "mm_per_mm_s2": 4e-6, "form": form}}
+        ext = extend_profile(prof, [e])
+        want = 4e-6 * respond(acc(src), frame_y)
+        off, _ = motion_offsets(ext)
+        np.testing.assert_allclose(off(cmd)[:, 1], want, atol=1e-12)
+        np.testing.assert_allclose(mean_offsets(ext, cmd)[:, 1], want, atol=1e-12)
+        assert np.abs(off(cmd)[:, 0]).max() == 0.0
+        through_cmd = 4e-6 * respond(acc(src), hy)
+        assert np.abs(through_cmd - want).max() > 0.05 * np.abs(want).max()

@@ -228,3 +228,78 @@ def test_a_grid_too_coarse_for_the_raw_bins_is_the_profiles_error():
         with pytest.raises(ProfileError, match=r"axis x \(twin.physics: bins\): n_taps 500 "
                                                r"exceeds the estimable length N_h = 250"):
             call(prof, "x")
+
+
+def _pairs_model(num, poles_hz_zeta):
+    """ModalModel of num(s)/Π(s² + 2ζωs + ω²) (strictly proper) from scipy's partial
+    fractions: a pair of residues r, r̄ at p, p̄ is (2 Re r·s − 2 Re(r p̄))/(s² + 2ζωs + ω²)."""
+    from scipy.signal import residue
+
+    den = np.array([1.0])
+    for f, z in poles_hz_zeta:
+        w = 2 * math.pi * f
+        den = np.polymul(den, [1.0, 2 * z * w, w * w])
+    r, p, _ = residue(num, den)
+    f = np.array([pz[0] for pz in poles_hz_zeta])
+    zeta = np.array([pz[1] for pz in poles_hz_zeta])
+    b1 = np.zeros(f.size)
+    b0 = np.zeros(f.size)
+    for ri, pi in zip(r, p):
+        if pi.imag <= 0:
+            continue
+        k = int(np.argmin(np.abs(np.abs(pi) - 2 * math.pi * f)))
+        b1[k] = 2 * ri.real
+        b0[k] = -2 * (ri * np.conj(pi)).real / (2 * math.pi * f[k]) ** 2
+    dc = float(np.polyval(num, 0.0) / np.polyval(den, 0.0))
+    return ModalModel(f, zeta, b1, b0, lag_s=0.0, dc_gain=dc)
+
+
+def test_a_force_on_the_frame_rings_without_the_commands_antiresonance():
+    """A chain whose command enters beside the frame has a zero pair at the frame's own
+    frequency: H = ω₁²ω₂²/ω_z² (s² + 2ζ_z ω_z s + ω_z²)/(D₁D₂). A force at the frame's end
+    of the chain reaches the carriage as ω₁²ω₂²/(D₁D₂): ``frame_model`` takes that pair out
+    (the closed form to 1e-9 over 1–200 Hz), keeps the real zero of a damper (a far one,
+    s = −k/c), and is None where the pair lies above the measured band or is no
+    antiresonance (ζ_z ≥ ANTIRESONANCE_ZETA)."""
+    from gcode_feedopt.twin.physics import ANTIRESONANCE_ZETA, frame_model
+
+    (f1, z1), (f2, z2), (fz, zz), fc = (31.0, 0.05), (95.0, 0.07), (78.0, 0.04), 400.0
+    w1, w2, wz, wc = (2 * math.pi * f for f in (f1, f2, fz, fc))
+    k = (w1 * w2) ** 2 / wz ** 2
+    num = k * np.polymul([1.0, 2 * zz * wz, wz * wz], [1.0 / wc, 1.0])
+    mm = _pairs_model(num, [(f1, z1), (f2, z2)])
+    f = np.linspace(1.0, 200.0, 60)
+    s = 2j * math.pi * f
+    assert np.allclose(mm.response(f), np.polyval(num, s) / (
+        (s * s + 2 * z1 * w1 * s + w1 * w1) * (s * s + 2 * z2 * w2 * s + w2 * w2)), rtol=1e-9)
+    want = (w1 * w2) ** 2 * (1 + s / wc) / ((s * s + 2 * z1 * w1 * s + w1 * w1)
+                                            * (s * s + 2 * z2 * w2 * s + w2 * w2))
+    got = frame_model(mm, band_hi_hz=150.0)
+    assert got is not None
+    assert np.allclose(got.response(f), want, rtol=1e-9, atol=1e-12)
+    assert got.response(np.array([0.0]))[0] == pytest.approx(1.0, abs=1e-12)
+    assert frame_model(mm, band_hi_hz=70.0) is None           # the pair above the band
+    num_damped = k * np.polymul([1.0, 2 * ANTIRESONANCE_ZETA * wz, wz * wz], [1.0 / wc, 1.0])
+    assert frame_model(_pairs_model(num_damped, [(f1, z1), (f2, z2)]), 150.0) is None
+
+
+def test_the_frame_response_of_a_fitted_belt_and_hotend_is_its_force_path():
+    """tests/foreign's belt + hotend chain (rotor lag → belt → carriage → hotend, the motor
+    on a sprung frame), its exact FRF fitted as ``profile build`` fits one: the fit's frame
+    response is the chain's response to a force on its frame to 1e-4 over 5–60 Hz (the
+    command path's own differs from it by up to 53 % there)."""
+    from gcode_feedopt.twin.modal import fit_modal
+    from gcode_feedopt.twin.physics import frame_model
+    from tests.foreign.machines import make_machine
+
+    ch = make_machine(805).chans["x"]
+    assert ch.kind == "belt_hotend"
+    f = np.arange(2.0, 240.0, 0.5)
+    fit = fit_modal(f, ch.frf(f))
+    got = frame_model(fit.model, band_hi_hz=float(f[-1]))
+    assert got is not None
+    fb = np.arange(5.0, 60.0, 1.0)
+    want = ch.frf(fb, inp=1) / ch.frf(np.array([1e-4]), inp=1)[0]
+    ratio = got.response(fb) / want
+    assert np.max(np.abs(ratio - 1)) < 1e-4, ratio
+    assert np.max(np.abs(np.abs(ch.frf(fb) / want) - 1)) > 0.5
