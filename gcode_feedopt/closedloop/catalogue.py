@@ -491,10 +491,14 @@ def _friction(S: _Scorer):
     0.15 µm against the mean, a lead of 1.55 µm with the draw, 23 % of the held-out part.
 
     The same force as a loop with integral action (a servo) sees it: washed out in τ_i
-    (twin.extensions.integral_sign). Tried only on an axis whose modal fit has real poles,
-    which such a loop puts below its bandwidth (AxisPhysics.integral_action): a corexy's
-    friction (tests/foreign, seed 18) otherwise took this form and came out a tie with
-    backlash. It nests the steady forms (τ_i → ∞) and has τ_i to spare, so it must also beat
+    (twin.extensions.integral_sign). Tried on every axis: a servo's integrator often leaves
+    no real pole in the modal fit (AxisPhysics.integral_action), its pole below the FRF band
+    or two heavily damped pairs in its place — tests/foreign 901 (x: 16.1 Hz ζ 0.84, 18.7 Hz
+    ζ 0.82), 902 (y: measured from 5 Hz), 607: their frictions were sized 77.0, 77.7 and
+    72.7 % low in a steady form, held out 13.7 → 12.9, 4.7 → 4.2 µm; washed out, 4.9 and
+    2.2 µm. (Gated on real poles once, when a corexy's friction, seed 18, took this form and
+    came out a tie with backlash; the bar below keeps it off there.) It nests the steady
+    forms (τ_i → ∞) and has τ_i to spare, so it must also beat
     the best of them significantly: its gain in the fit part's squares, in units of its
     residual variance per effective sample, above the χ²(1) quantile at 1 %
     Bonferroni-divided over the τ_i tried. A best τ_i at the lowest end of its scan (5 ms,
@@ -539,7 +543,7 @@ def _friction(S: _Scorer):
         best = (v, "stick", mag, A.fit_model(stuck(mag), S.extra, S.lag))
     fh = A.phys.force if A.phys.force is not None else hd
     bar = stats.chi2.ppf(1.0 - INTEGRAL_ALPHA / len(INTEGRAL_TAU_S), 1)
-    taus_i = INTEGRAL_TAU_S if A.phys.integral_action else ()
+    taus_i = INTEGRAL_TAU_S
     best_int = None
     for tau_i in taus_i:
         G = respond(integral_sign(cmd, ts, tau_i), fh)[:, None]

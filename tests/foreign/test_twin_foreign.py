@@ -206,6 +206,10 @@ SETS = {
     # belt + hotend, x 26.8 Hz ζ 0.047, frame 81.7 Hz, 3 FRFs, sensor σ 1.9 µm: x's frame
     # pushed as y's motor is commanded
     "hotend805more": (805, "more"),
+    # PID servos whose fits have no real pole: 901 x as two pairs at 16.1 / 18.7 Hz, ζ 0.84 /
+    # 0.82; 902 y measured from 5 Hz, its loop at 47.4 Hz, ζ 0.41
+    "servo901more": (901, "more"),
+    "servo902more": (902, "more"),
 }
 #: sets whose machine is drawn as another kind than its seed's own: name -> kind
 KIND = {
@@ -869,6 +873,27 @@ def test_a_servos_friction_is_named_as_its_integrator_sees_it(dataset):
     assert abs(g["params"]["magnitude_mm"] - tv) <= 0.15 * tv, (truth, g)
     ax = truth["axis"]
     assert d.holdout_rms_mm["after"][ax] < 0.3 * d.holdout_rms_mm["before"][ax]
+    assert [e["kind"] for e in d.effects] == ["friction"], d.effects
+
+
+@pytest.mark.parametrize("which, size_rel", [("servo901more", None), ("servo902more", 0.05)])
+def test_a_servos_friction_is_washed_out_where_its_fit_has_no_real_pole(which, size_rel,
+                                                                        dataset):
+    """A Coulomb friction on a PID servo whose modal fit shows no real pole (its integrator
+    below the FRF band, or two heavily damped pairs in its place): the friction is tried
+    washed out by the integrator on every axis now (catalogue._friction), named in form
+    ``integral`` and explains most of the held-out error — 901: 13.7 → 4.9 µm (a steady form,
+    sized 77 % low, left 12.9), 902: 4.7 → 2.2 µm and its size within 5 % (−0.2 %; the
+    steady form: −77.7 %, 4.2 µm). 901's size is +82 %: the label is a scale there, the lag
+    of the loop without its integrator (benchmarks/foreign_effects.py marks it ``*``)."""
+    truth, g, d = _named(dataset(which), "friction")
+    assert g is not None, (truth, d.effects)
+    assert g["params"]["form"] == "integral", g
+    ax = truth["axis"]
+    assert d.holdout_rms_mm["after"][ax] < 0.5 * d.holdout_rms_mm["before"][ax], d.holdout_rms_mm
+    if size_rel is not None:
+        tv = truth["params"]["magnitude_mm"]
+        assert abs(g["params"]["magnitude_mm"] - tv) <= size_rel * tv, (truth, g)
     assert [e["kind"] for e in d.effects] == ["friction"], d.effects
 
 
