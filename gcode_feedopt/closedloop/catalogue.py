@@ -648,13 +648,15 @@ def _cross_coupling(S: _Scorer, other: _Axis):
     belt + hotend machines of tests/foreign (seeds 800–806) the command-path forms sized it
     +5 … +63 % high (625 y at 30 Hz: |H_frame| 6.37 against |H_cmd| 5.14).
 
-    The weight is the one fitted jointly with the plant draw (``theta``), not against the
-    twin's mean alone as every other kind's: the other axis's motion through this axis's
-    modes is much like this axis's own motion through a stiffer or softer machine, so against
-    the mean it takes up the mean's own miss. benchA's frame force (3e-6, its frame at 100 Hz
-    behind a 36 Hz mode) came out −0.3 % through the command path against the mean — two
-    errors cancelling: through the frame −12.8 % against the mean, +2.0 % with the draw;
-    tests/foreign 805: +60.6 % → +40 % → +2.5 %."""
+    The form is chosen, and its weight fitted, jointly with the plant draw (``score_draw``,
+    ``theta``), not against the twin's mean alone as every other kind's: the other axis's
+    motion through this axis's modes is much like this axis's own motion through a stiffer
+    or softer machine, so against the mean it takes up the mean's own miss. benchA's frame
+    force (3e-6, its frame at 100 Hz behind a 36 Hz mode) came out −0.3 % through the command
+    path against the mean — two errors cancelling: through the frame −12.8 % against the
+    mean, +2.0 % with the draw; tests/foreign 805: +60.6 % → +40 % → +2.5 %. Chosen against
+    the mean, the form that best fitted the mean's miss won where the draw explains much (907
+    y, 802 x: the ``belt`` form, weight ~0, and the commanded coupling was missed)."""
     ts, hd = S.ts, S.hd
     po = other.p0
 
@@ -668,10 +670,10 @@ def _cross_coupling(S: _Scorer, other: _Axis):
     if fh is not None:
         forms["frame"] = respond(acc(po), fh)[:, None]
         forms["frame_command"] = respond(other.cmd_acc, fh)[:, None]
-    score = {form: S.score_extra(G) for form, G in forms.items()}
+    score = {form: S.score_draw(G) for form, G in forms.items()}
     form = max(forms, key=lambda f: score[f])     # ties: the first, in the order above
     m = S.with_extra(forms[form])
     name = "coefficient" if form == "position" else "mm_per_mm_s2"
-    # sized with the plant draw fitted beside it (the only kind so sized: docs/diagnose.md)
+    # chosen and sized with the plant draw fitted beside it (the only kind: docs/diagnose.md)
     params = {"from_axis": other.ax, name: float(m.theta[-1]), "form": form}
     return ("cross_coupling", form, params, m, len(forms), 2)
