@@ -663,16 +663,19 @@ def _cross_coupling(S: _Scorer, other: _Axis):
     def acc(p):
         return np.gradient(np.gradient(p, ts), ts)
 
-    G_acc = respond(acc(po), hd)[:, None]
+    a = acc(po)
+    G_acc = respond(a, hd)[:, None]
     forms = {"acceleration": G_acc, "command": respond(other.cmd_acc, hd)[:, None],
              "belt": respond(G_acc[:, 0], hd)[:, None], "position": (po - po[0])[:, None]}
     fh = S.A.phys.frame
     if fh is not None:
-        forms["frame"] = respond(acc(po), fh)[:, None]
+        forms["frame"] = respond(a, fh)[:, None]
         forms["frame_command"] = respond(other.cmd_acc, fh)[:, None]
-    score = {form: S.score_draw(G) for form, G in forms.items()}
+    # each form fitted once: scored on what the draw leaves (``score_draw``), the best kept
+    models = {form: S.with_extra(G) for form, G in forms.items()}
+    score = {form: -float(m.resid[S.fit] @ m.resid[S.fit]) for form, m in models.items()}
     form = max(forms, key=lambda f: score[f])     # ties: the first, in the order above
-    m = S.with_extra(forms[form])
+    m = models[form]
     name = "coefficient" if form == "position" else "mm_per_mm_s2"
     # chosen and sized with the plant draw fitted beside it (the only kind: docs/diagnose.md)
     params = {"from_axis": other.ax, name: float(m.theta[-1]), "form": form}

@@ -204,22 +204,20 @@ def mean_offsets(profile, cmd_mm: np.ndarray) -> np.ndarray:
         m = np.asarray(axis_impulse(profile, ax).mean)
         h[ax] = m / np.sum(m)
     preds = {ax: respond(cmd[:, i], h[ax]) for i, ax in enumerate(axes)}
-    force = {}
+    phys = _lazy_physics(profile)
     for i, ax in enumerate(axes):
         for e in profile.axes[ax].effects:
             if e["kind"] not in ADDITIVE_KINDS and e["kind"] != "gain":
                 continue
             fh = None
             if e["kind"] == "friction" and e["params"].get("form") in ("force", "integral"):
-                if ax not in force:
-                    force[ax] = _force_h(profile, ax)
-                fh = force[ax]
+                fh = phys()[ax].force
             other = e["params"].get("from_axis")
             out[:, i] += additive_term(e["kind"], e["params"], cmd[:, i], profile.ts_s, h[ax],
                                        other_pred_mm=preds.get(other), force_h=fh,
                                        pred_mm=preds[ax],
                                        other_cmd_mm=_column(cmd, axes, other),
-                                       frame_h=_frame_h(profile, ax, e))
+                                       frame_h=_frame_h(phys, ax, e))
     return out
 
 
@@ -250,7 +248,8 @@ def motion_offsets(profile):
     # samples) and once or twice through the dynamics: what a window must remember
     memory = (2 if twice else 1) * max(v.size for v in h.values()) + 4
 
-    frame = [_frame_h(profile, ax, e) for _, ax, e in todo]
+    phys = _lazy_physics(profile)
+    frame = [_frame_h(phys, ax, e) for _, ax, e in todo]
 
     def offsets(cmd_mm):
         cmd = np.asarray(cmd_mm, float)
@@ -271,16 +270,25 @@ def _column(cmd: np.ndarray, axes, axis):
     return cmd[:, axes.index(axis)] if axis in axes else None
 
 
-def _force_h(profile, axis):
+def _lazy_physics(profile):
+    """A function () -> ``axis_physics(profile)``, computed on the first call only (the force
+    and frame responses; most profiles' extensions need neither)."""
+    got = []
 
-    return axis_physics(profile)[axis].force
+    def phys():
+        if not got:
+            got.append(axis_physics(profile))
+        return got[0]
+
+    return phys
 
 
-def _frame_h(profile, axis, effect):
-    """The axis's frame response where ``effect`` is a cross-coupling of a frame form, else
-    None. A profile whose fit has no antiresonance (``AxisPhysics.frame`` None) cannot have
-    been diagnosed such a form; one edited by hand to it gets the command path's response."""
+def _frame_h(phys, axis, effect):
+    """The axis's frame response (``phys``: ``_lazy_physics``) where ``effect`` is a
+    cross-coupling of a frame form, else None. A profile whose fit has no antiresonance
+    (``AxisPhysics.frame`` None) cannot have been diagnosed such a form; one edited by hand to
+    it gets the command path's response."""
     if effect["kind"] != "cross_coupling" or effect["params"].get("form") not in (
             "frame", "frame_command"):
         return None
-    return axis_physics(profile)[axis].frame
+    return phys()[axis].frame
