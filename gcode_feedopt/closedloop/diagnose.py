@@ -19,7 +19,10 @@ then refined. A kind may have two forms, the one that fits better is taken (the 
 - ``delay`` (``seconds``): the command reaches the motor late, x̂(t − d);
 - ``gain`` (``scale``): the motor command scaled about the machine origin, x = s·x̂;
 - ``resonance_shift`` (``frequency_hz``): the dominant mode moved as a mass change moves it
-  (modal model, form ``mass``), or the whole response rescaled in frequency (form ``scale``);
+  (modal model, form ``mass``), the whole response rescaled in frequency (form ``scale``), or
+  the load of the whole loop heavier by ``load_ratio`` behind a velocity feedback of corner
+  ``corner_hz`` (form ``load``, ``ModalModel.loaded``: a servo's poles and damping move
+  together; reported as the pole pair at the loaded response's peak);
 - ``backlash`` (``magnitude_mm``, the total width of the play): the play acting on the command
   before the dynamics (form ``input``, a play between pulley and belt) or on the response (form
   ``output``), plus a free offset (where the band sits at the start is unknown); on an axis with
@@ -27,8 +30,9 @@ then refined. A kind may have two forms, the one that fits better is taken (the 
 - ``friction`` (``magnitude_mm``, the quasi-static lag): a Coulomb force −F·sign(v) whose lag
   relaxes with a time constant τ once the axis stops (τ scanned, 0 = at once), through the
   axis dynamics (form ``response``), the force path (form ``force``) or as a following error
-  at the output (form ``output``); on an axis with integral action (a servo: real poles in
-  its modal fit) also washed out by the integrator in ``integral_s`` (form ``integral``); or
+  at the output (form ``output``); on every axis also washed out by an integrator in
+  ``integral_s`` (form ``integral``) or through the loop that holds the load, (1 − H)/(s (s +
+  a)) with ``corner_hz`` a/2π (form ``loop``, ``ModalModel.load_force``); or
   a force of the carriage's own velocity, which sticks it at each reversal: a play of width
   2·magnitude on the response (form ``stick``, the same model as a backlash ``output``:
   where the held-out part cannot tell them apart, the backlash is named, the friction tied);

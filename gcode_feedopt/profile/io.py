@@ -171,6 +171,12 @@ def _read_axis(sec: _Section, base_dir: pathlib.Path | None) -> AxisModel:
                 params[name] = ps.getfloat(name, minval=spec[0], maxval=spec[1])
         ps.check_unknown()
         es.check_unknown()
+        needs = {("resonance_shift", "load"): ("load_ratio", "corner_hz"),
+                 ("friction", "loop"): ("corner_hz",)}.get((kind, params.get("form")), ())
+        missing = [n for n in needs if n not in params]
+        if missing:
+            raise ProfileError(f"{ps.origin}: {ps.where}: {kind} of form {params['form']} "
+                               f"needs {' and '.join(missing)}; add it or diagnose the log again")
         effects.append({"kind": kind, "params": params})
     prov = sec.raw("provenance", {})
     sec.check_unknown()

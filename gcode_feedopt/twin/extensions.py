@@ -15,7 +15,9 @@ way ``diagnose`` fitted it:
   dynamics (``response``), the force response (``force``) or at the output (``output``); on a
   position loop with integral action (a servo) form ``integral``: the force's step at each
   reversal through the force response, washed out by the integrator with time constant
-  ``integral_s`` (:func:`integral_sign`); form ``stick``: a force of the carriage's own
+  ``integral_s`` (:func:`integral_sign`); form ``loop``: the force through the loop that
+  holds the load, (1 − H)/(s (s + a)) with ``corner_hz`` a/2π (``ModalModel.load_force``,
+  ``magnitude_mm`` the peak of its step response); form ``stick``: a force of the carriage's own
   velocity, which holds it at a reversal until the drive's pull exceeds it: a play of total
   width 2·``magnitude_mm`` on the response, starting centred (a print starts at rest);
 - ``cross_coupling``: ``mm_per_mm_s2`` times the other axis's predicted acceleration through
@@ -65,15 +67,16 @@ VARIANCE_KINDS = ("periodic_time",)
 PARAMS = {
     "delay": {"delay_s": (-0.1, 0.1)},
     "gain": {"scale": (0.5, 2.0)},
-    "resonance_shift": {"frequency_hz": (1e-3, 1e4), "form": ("mass", "scale")},
+    "resonance_shift": {"frequency_hz": (1e-3, 1e4), "load_ratio": (-0.9, 10.0),
+                        "corner_hz": (0.0, 1e5), "form": ("mass", "scale", "load")},
     "periodic_time": {"frequency_hz": (1e-3, 1e4), "amplitude_mm": (0.0, 10.0)},
     "periodic_position": {"wavelength_mm": (1e-3, 1e4), "amplitude_mm": (0.0, 10.0),
                           "phase_rad": (-10.0, 10.0), "form": ("dynamics", "output")},
     "backlash": {"magnitude_mm": (0.0, 10.0), "offset_mm": (-10.0, 10.0),
                  "lag_s": (-0.1, 0.1), "form": ("input", "output")},
     "friction": {"magnitude_mm": (-10.0, 10.0), "relax_s": (0.0, 1e6),
-                 "integral_s": (1e-4, 10.0),
-                 "form": ("response", "force", "output", "integral", "stick")},
+                 "integral_s": (1e-4, 10.0), "corner_hz": (0.0, 1e5),
+                 "form": ("response", "force", "output", "integral", "stick", "loop")},
     "cross_coupling": {"from_axis": ("x", "y"), "mm_per_mm_s2": (-1.0, 1.0),
                        "coefficient": (-1.0, 1.0),
                        "form": ("acceleration", "command", "belt", "position", "frame",
@@ -136,7 +139,8 @@ def additive_term(kind: str, params: dict, cmd_mm: np.ndarray, ts_s: float, h: n
         cmd_mm: (K,) the axis's commanded position. h: (n,) its unit-DC impulse response.
         other_pred_mm: (K,) the other axis's predicted position (cross_coupling).
         other_cmd_mm: (K,) the other axis's commanded position (cross_coupling form ``command``).
-        force_h: (n,) the force response (friction form ``force``; else ``h`` is used).
+        force_h: (n,) the force response (friction forms ``force``, ``integral``; form
+            ``loop``: the load's, ``AxisPhysics.load_force``; else ``h`` is used).
         frame_h: (n,) the frame response (cross_coupling forms ``frame``, ``frame_command``;
             else ``h`` is used).
         pred_mm: (K,) the axis's prediction, for the ``output`` forms (default h * cmd).
@@ -161,6 +165,9 @@ def additive_term(kind: str, params: dict, cmd_mm: np.ndarray, ts_s: float, h: n
             return fx.play(pred, 2.0 * p["magnitude_mm"]) - pred
         if p["form"] == "integral":
             s = integral_sign(cmd, ts_s, p["integral_s"])
+            return p["magnitude_mm"] * respond(s, h if force_h is None else force_h)
+        if p["form"] == "loop":
+            s = relax_sign(cmd, ts_s, 0.0)
             return p["magnitude_mm"] * respond(s, h if force_h is None else force_h)
         s = relax_sign(cmd, ts_s, p["relax_s"])
         if p["form"] == "output":
@@ -212,6 +219,9 @@ def mean_offsets(profile, cmd_mm: np.ndarray) -> np.ndarray:
             fh = None
             if e["kind"] == "friction" and e["params"].get("form") in ("force", "integral"):
                 fh = phys()[ax].force
+            elif e["kind"] == "friction" and e["params"].get("form") == "loop":
+                lf = phys()[ax].load_force
+                fh = None if lf is None else lf(2 * np.pi * e["params"]["corner_hz"])
             other = e["params"].get("from_axis")
             out[:, i] += additive_term(e["kind"], e["params"], cmd[:, i], profile.ts_s, h[ax],
                                        other_pred_mm=preds.get(other), force_h=fh,

@@ -34,7 +34,8 @@ from ..firmware.shaper import shape_axes
 from ..vm.effects import dominant_mode_hz
 from . import frf as _frf
 from .modal import (MIN_SPREAD_MEASUREMENTS, PRIOR_SPREAD_FREQ, PRIOR_SPREAD_WEIGHT, AxisModal,
-                    ModalModel, ensemble_impulse, fit_axis, prior_spread_response_var)
+                    ModalModel, ensemble_impulse, fit_axis, loaded_cov,
+                    prior_spread_response_var)
 
 _CACHE: dict = {}
 
@@ -205,7 +206,8 @@ def log_machine_command(profile, log) -> np.ndarray:
 def apply_effects(fits: AxisModal, effects, ts_s: float | None = None) -> AxisModal:
     """The fits with a diagnosis's linear extensions applied to every member (a delay, a gain
     about the origin, the dominant mode moved as a mass change moves it, or with form
-    ``scale`` the whole response rescaled so the peak of |H| (up to 0.5/ts_s) lands there)."""
+    ``scale`` the whole response rescaled so the peak of |H| (up to 0.5/ts_s) lands there, or
+    with form ``load`` the load of the whole loop heavier, ``ModalModel.loaded``)."""
     if not effects:
         return fits
     new = []
@@ -215,7 +217,7 @@ def apply_effects(fits: AxisModal, effects, ts_s: float | None = None) -> AxisMo
     f_peak = mm.peak_hz(0.5 / ts_s) if ts_s else f_dom
     doms = fits.member_modes(dom)
     for ft, dom_k in zip(fits.fits, doms):
-        m = ft.model
+        m, cov = ft.model, ft.cov
         for e in effects:
             p = e["params"]
             if e["kind"] == "delay":
@@ -224,15 +226,25 @@ def apply_effects(fits: AxisModal, effects, ts_s: float | None = None) -> AxisMo
                 m = m.scaled(p["scale"])
             elif e["kind"] == "resonance_shift" and p.get("form") == "scale":
                 m = m.rescaled(p["frequency_hz"] / f_peak)
+            elif e["kind"] == "resonance_shift" and p.get("form") == "load":
+                lm = m.loaded(p["load_ratio"], 2 * math.pi * p["corner_hz"])
+                if lm is None:
+                    raise ProfileError(
+                        f"resonance_shift (load {p['load_ratio']:g}, corner "
+                        f"{p['corner_hz']:g} Hz) makes a measured FRF's loop unstable; "
+                        "diagnose the log again or remove this extension")
+                if cov is not None:
+                    cov = loaded_cov(m, cov, p["load_ratio"], 2 * math.pi * p["corner_hz"])
+                m = lm
             elif e["kind"] == "resonance_shift":
                 m = m.mode_shifted(dom_k, p["frequency_hz"] / f_dom)
-        new.append(dataclasses.replace(ft, model=m))
+        new.append(dataclasses.replace(ft, model=m, cov=cov))
     return dataclasses.replace(fits, fits=tuple(new))
 
 
 def _bins(profile, axis: str):
     """(freq_hz, responses) of the raw-bin route: DC pinned, the axis's extensions applied to
-    the rows (delay e^{−j2πfd}, gain ×s, resonance shift H(f·f0/f1))."""
+    the rows (delay e^{−j2πfd}, gain ×s, resonance shift H(f·f0/f1), a loaded loop)."""
     ax = profile.axes[axis]
     freq, resp = pinned_bins(ax.frf.freq_hz, ax.frf.response, dc_gain_of(profile))
     for e in ax.effects:
@@ -241,6 +253,12 @@ def _bins(profile, axis: str):
             resp = resp * np.exp(-2j * np.pi * freq * p["delay_s"])[None, :]
         elif e["kind"] == "gain":
             resp = resp * p["scale"]
+        elif e["kind"] == "resonance_shift" and p.get("form") == "load":
+            # the loaded loop bin by bin: H/(1 + ratio·(1 − H)·s/(s + a)) (ModalModel.loaded)
+            s = 2j * np.pi * freq[None, :]
+            a = 2 * np.pi * p["corner_hz"]
+            f_v = s / (s + a) if a > 0 else np.ones_like(s)
+            resp = resp / (1.0 + p["load_ratio"] * (1.0 - resp) * f_v)
         elif e["kind"] == "resonance_shift":
             mm = mean_model(profile, axis)
             f0 = (mm.peak_hz(0.5 / profile.ts_s) if p.get("form") == "scale"
@@ -335,6 +353,13 @@ class AxisPhysics:
         mode_hz: the dominant mode of ``mean``.
         shifted: f1 -> (n,) the response with the dominant mode at f1 as a mass change moves
             it (modal physics), or None (then only the frequency-rescaled form is tried).
+        loaded: (ratio, a) -> (n,) the response with the load its loop moves heavier by
+            ``ratio`` (``ModalModel.loaded``, corner a rad/s), or None where that loop is
+            unstable; None without modal physics.
+        loaded_hz: (ratio, a) -> the loaded model's pole pair at its peak
+            (``ModalModel.pair_at_peak_hz``), Hz.
+        load_force: a -> (n,) the response to a force on that load through the loop
+            (``ModalModel.load_force``), scaled so its step response peaks at 1, or None.
         force: (n,) response of the axis to a force on its carriage, unit DC gain: the modes
             without the residues' damping zeros (b1 = 0, no direct part), or None.
         frame: (n,) response of the axis to a force on the frame that carries its motor,
@@ -358,6 +383,9 @@ class AxisPhysics:
     factor: np.ndarray
     mode_hz: float
     shifted: Callable[[float], np.ndarray] | None = None
+    loaded: Callable[[float, float], np.ndarray | None] | None = None
+    loaded_hz: Callable[[float, float], float] | None = None
+    load_force: Callable[[float], np.ndarray | None] | None = None
     force: np.ndarray | None = None
     frame: np.ndarray | None = None
     mode_span_hz: tuple[float, float] | None = None
@@ -368,11 +396,14 @@ class AxisPhysics:
     members: tuple = ()
     band_hz: np.ndarray | None = None
 
-    def move_inside_spread(self, form: str, f1: float, f_peak: float) -> bool:
+    def move_inside_spread(self, form: str, f1: float, f_peak: float,
+                           load: tuple[float, float] | None = None) -> bool:
         """Whether the dominant mode moved to ``f1`` (``form`` "mass": the representative
         model's mode as a mass change moves it; "scale": the members' mean response stretched
         so its peak ``f_peak`` goes to f1) stays where another measurement of the same machine
-        could put it: at every measured frequency f its change |ΔH(f)| is within the 95 %
+        could put it (``form`` "load": the representative model's loop loaded by ``load`` =
+        (ratio, a), ``ModalModel.loaded``): at every measured frequency f its change |ΔH(f)| is
+        within the 95 %
         prediction bound of one more member about the members' mean,
         k_n·s(f), s² = Σ|H_i − H̄|²/(n − 1), k_n² = F₀.₉₅(2, 2(n − 1))·(1 + 1/n) (a complex
         Gaussian deviation, its variance estimated from n members: k 5.3 / 3.0 / 2.5 / 2.0 at
@@ -412,7 +443,12 @@ class AxisPhysics:
         else:
             s = np.sqrt(ss / (n - 1))
             k = math.sqrt(stats.f.ppf(0.95, 2, 2 * (n - 1)) * (1.0 + 1.0 / n))
-        if form == "mass":
+        if form == "load":
+            moved = self.model.loaded(*load)
+            if moved is None:
+                return False
+            change = moved.response(f) - self.model.response(f)
+        elif form == "mass":
             dom = self.model.dominant
             moved = self.model.mode_shifted(dom, f1 / float(self.model.freq_hz[dom]))
             change = moved.response(f) - self.model.response(f)
@@ -458,7 +494,7 @@ def axis_physics(profile) -> dict:
     out = {}
     for ax in ("x", "y"):
         mean, L = imp[ax]
-        shifted = None
+        shifted = loaded = loaded_hz = load_force = None
         if profile.twin.physics == "modal":
             fits = axis_modal(profile, ax)
             mm = fits.mean_model()
@@ -477,6 +513,34 @@ def axis_physics(profile) -> dict:
                     h = mean - h_mm / np.sum(h_mm) + mm.mode_shifted(dom, f1 / f_dom).impulse(ts, n) / np.sum(h_mm)
                     cache[key] = h / np.sum(h)
                 return cache[key]
+
+            f_top = min(400.0, 0.5 / ts)
+
+            lcache = {}
+
+            def loaded(ratio, a, mm=mm, ts=ts, n=n, h_mm=h_mm, mean=mean, cache=lcache):
+                key = (round(float(ratio), 9), round(float(a), 6))
+                if key not in cache:
+                    lm = mm.loaded(ratio, a)
+                    h = None if lm is None else (mean - h_mm / np.sum(h_mm)
+                                                 + lm.impulse(ts, n) / np.sum(h_mm))
+                    cache[key] = None if h is None else h / np.sum(h)
+                return cache[key]
+
+            fcache = {}
+
+            def load_force(a, mm=mm, ts=ts, n=n, cache=fcache):
+                key = round(float(a), 6)
+                if key not in cache:
+                    fm = mm.load_force(a)
+                    h = None if fm is None else fm.impulse(ts, n)
+                    peak = 0.0 if h is None else float(np.max(np.abs(np.cumsum(h))))
+                    cache[key] = h / peak if peak > 0 and np.isfinite(peak) else None
+                return cache[key]
+
+            def loaded_hz(ratio, a, mm=mm, f_top=f_top):
+                lm = mm.loaded(ratio, a)
+                return math.nan if lm is None else lm.pair_at_peak_hz(1.0, f_top)
 
             mode = f_dom
             force = _force_response(mm, ts, n)
@@ -502,7 +566,9 @@ def axis_physics(profile) -> dict:
             force = frame = None
             span = scan = zeta = None
             integral = False
-        out[ax] = AxisPhysics(mean=mean, factor=L, mode_hz=mode, shifted=shifted, force=force,
+        out[ax] = AxisPhysics(mean=mean, factor=L, mode_hz=mode, shifted=shifted,
+                              loaded=loaded, loaded_hz=loaded_hz, load_force=load_force,
+                              force=force,
                               frame=frame,
                               mode_span_hz=span, mode_scan_hz=scan, mode_zeta=zeta,
                               integral_action=integral,

@@ -25,6 +25,9 @@ CMD = 10 + 0.1 * np.cumsum(np.r_[np.zeros(100), np.ones(200), np.zeros(300)])
      lambda h: CMD[0] + 1.02 * (respond(CMD, h) - CMD[0]), 1e-9),
     ({"kind": "resonance_shift", "axis": "x", "params": {"frequency_hz": 32.0}},
      lambda h: respond(CMD, _shifted_mean(32.0)), 0.05),
+    ({"kind": "resonance_shift", "axis": "x",
+      "params": {"frequency_hz": 30.0, "load_ratio": 0.3, "corner_hz": 25.0, "form": "load"}},
+     lambda h: respond(CMD, _loaded_mean(0.3, 2 * np.pi * 25.0)), 1e-9),
 ])
 def test_linear_effect_applied_to_the_model(effect, truth, limit):
     h0 = nominal_impulse(P)["x"][0]
@@ -42,6 +45,37 @@ def _shifted_mean(f1):
     """The representative model's dominant mode moved to f1 Hz as a mass change moves it."""
     m = mean_model(P, "x")
     return m.mode_shifted(m.dominant, f1 / m.freq_hz[m.dominant]).impulse(P.ts_s, P.twin.n_taps)
+
+
+def _loaded_mean(ratio, a):
+    """The members' mean impulse response with each member's loop loaded
+    (ModalModel.loaded): the twin's mean is its members' (twin.modal.ensemble_impulse)."""
+    from gcode_feedopt.twin.physics import axis_modal
+
+    return np.mean([m.loaded(ratio, a).impulse(P.ts_s, P.twin.n_taps)
+                    for m in axis_modal(P, "x").models], axis=0)
+
+
+@pytest.mark.parametrize("kind, params, missing", [
+    ("resonance_shift", {"frequency_hz": 30.0, "load_ratio": 0.3, "form": "load"}, "corner_hz"),
+    ("friction", {"magnitude_mm": 0.01, "form": "loop"}, "corner_hz")])
+def test_a_form_without_its_parameter_is_refused_by_name(kind, params, missing, tmp_path):
+    """A profile whose extension of form ``load`` / ``loop`` lacks the corner (edited by
+    hand) is refused with the key that is missing, not run with a default."""
+    import yaml
+
+    from gcode_feedopt.errors import ProfileError
+
+    ext = extend_profile(P, [{"kind": kind, "axis": "x",
+                              "params": {**params, missing: 25.0}}])
+    path = save_profile(ext, tmp_path / "ext.yaml")
+    data = yaml.safe_load(path.read_text())
+    del data["axes"]["x"]["effects"][0]["params"][missing]
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(ProfileError, match=f"axes.x.effects.0.?.params.*needs {missing}"):
+        load_profile(path)
+    assert load_profile(save_profile(ext, tmp_path / "ok.yaml")).axes["x"].effects == \
+        ext.axes["x"].effects
 
 
 def test_extended_profile_round_trip(tmp_path):

@@ -74,3 +74,19 @@ def test_a_friction_that_sticks_lags_a_move_and_holds_through_the_reversal():
     assert np.allclose(stuck[220:back[0]], top)          # holds while the pull reverses
     assert np.allclose(off[back[5]:], m)                 # then trails the other way
     assert "stick" in PARAMS["friction"]["form"]
+
+
+def test_a_friction_through_the_loop_is_its_force_response_at_the_magnitude():
+    """Form ``loop``: −sign(v_cmd) (no relaxation) through the load's force response
+    (``AxisPhysics.load_force``, passed as force_h), times the magnitude."""
+    from gcode_feedopt.twin.extensions import relax_sign
+    from gcode_feedopt.vm.plant import respond
+
+    cmd = _ramp_and_hold()
+    h = np.exp(-np.arange(40) / 6.0)
+    h /= h.sum()
+    hf = np.diff(np.exp(-np.arange(41) / 9.0))            # a washed-out force response
+    p = {"magnitude_mm": 0.02, "form": "loop", "corner_hz": 30.0}
+    got = additive_term("friction", p, cmd, TS, h, force_h=hf)
+    np.testing.assert_allclose(got, 0.02 * respond(relax_sign(cmd, TS, 0.0), hf), atol=1e-15)
+    assert "loop" in PARAMS["friction"]["form"] and "corner_hz" in PARAMS["friction"]

@@ -387,3 +387,120 @@ def test_one_or_two_measurements_carry_a_typical_spread_that_covers(n):
         inside.append(np.abs(e[moving]) <= 1.959964 * sd[moving])
     cov = float(np.mean(np.concatenate(inside)))
     assert 0.90 <= cov <= 0.97, cov
+
+
+#: a PID servo's fit: integral action as a real pair below the loop mode, a screw mode, a lag
+SERVO = ModalModel(freq_hz=np.array([12.0, 40.0, 150.0]), damping=np.array([1.8, 0.6, 0.05]),
+                   b1_rad_s=np.array([30.0, 50.0, 0.0]), b0=np.array([0.3, 0.5, 0.2]),
+                   lag_s=0.002)
+
+
+@pytest.mark.parametrize("ratio, corner", [(0.3, 0.0), (0.3, 200.0), (-0.2, 50.0), (1.0, 1e3)])
+def test_a_loaded_loop_is_the_closed_form(ratio, corner):
+    """ModalModel.loaded: 1/H' = 1/H + ratio·(1/H − 1)·s/(s + a), a ModalModel (the closed
+    loop's partial fractions, odd real pole included) with the DC gain and the lag kept."""
+    f = np.linspace(0.5, 300.0, 700)
+    s = 2j * np.pi * f
+    h = SERVO.response(f)
+    fv = s / (s + corner) if corner > 0 else 1.0
+    lm = SERVO.loaded(ratio, corner)
+    np.testing.assert_allclose(lm.response(f), h / (1 + ratio * (1 - h) * fv), atol=1e-12)
+    assert lm.dc_gain == pytest.approx(1.0, abs=1e-12)
+    k = np.arange(3000)
+    hi = lm.impulse(TS, 3000)
+    assert hi.sum() == pytest.approx(1.0, abs=1e-12)
+    # −H'(0): unchanged where the feedback has a corner (F(0) = 0), ×(1 + ratio) without
+    lag = SERVO.lag_s_total * (1.0 + ratio if corner == 0 else 1.0)
+    assert k @ hi * TS == pytest.approx(lag, rel=1e-9)
+
+
+def test_a_heavier_mass_on_a_belt_is_its_mode_moved():
+    """One mass on a belt (its damping in the belt, b1 = 2ζω·b0): 1/H − 1 = m s²/(c s + k), so
+    the loaded form with a = 0 is exactly the mode moved as a mass change moves it."""
+    belt = ModalModel(np.array([40.0]), np.array([0.05]), np.array([0.1 * 2 * np.pi * 40]),
+                      np.array([1.0]))
+    lm, mv = belt.loaded(0.3, 0.0), belt.mode_shifted(0, 1 / np.sqrt(1.3))
+    np.testing.assert_allclose(lm.freq_hz, mv.freq_hz, rtol=1e-12)
+    np.testing.assert_allclose(lm.damping, mv.damping, rtol=1e-9)
+    np.testing.assert_allclose(lm.b1_rad_s, mv.b1_rad_s, rtol=1e-9)
+
+
+def test_a_loop_loaded_past_its_stability_is_none():
+    assert SERVO.loaded(-0.99, 0.0) is None or np.all(np.isfinite(SERVO.loaded(-0.99, 0.0).freq_hz))
+    light = ModalModel(np.array([30.0]), np.array([0.4]), np.array([0.0]), np.array([1.0]))
+    # 1/H' = 1/H − 1.2·(1/H − 1) = 1 − 0.2·(s² + 2ζωs)/ω²: a negative mass, an unstable loop
+    assert light.loaded(-1.2, 0.0) is None
+
+
+def test_the_fits_noise_is_carried_through_the_loading():
+    """loaded_cov (J·cov·Jᵀ by forward differences) against Monte Carlo: parameter draws
+    about SERVO, each loaded; the loaded impulse response's spread, tap by tap, as the twin
+    carries it (``noise_factor`` of the loaded model with the carried covariance)."""
+    from gcode_feedopt.twin.modal import _pack, _with_params, loaded_cov, noise_factor
+
+    rng = np.random.default_rng(3)
+    p0 = _pack(SERVO, False)
+    sd = np.full(p0.size, 0.003)
+    got = loaded_cov(SERVO, np.diag(sd ** 2), 0.3, 200.0)
+    lm = SERVO.loaded(0.3, 200.0)
+    assert got.shape == (p0.size + 4, p0.size + 4)      # a pair more: the feedback's state
+    F = noise_factor(lm, got, TS, 400)
+    hs = np.array([_with_params(SERVO, p0 + sd * rng.standard_normal(p0.size))
+                   .loaded(0.3, 200.0).impulse(TS, 400) for _ in range(3000)])
+    mc = hs.std(axis=0)
+    np.testing.assert_allclose(np.sqrt(np.sum(F * F, axis=1)), mc, rtol=0.05,
+                               atol=0.03 * mc.max())
+
+
+def test_a_load_written_on_the_bins_is_the_closed_form():
+    """The raw-bin route applies a ``load`` resonance shift bin by bin as the modal route."""
+    import dataclasses
+
+    from gcode_feedopt.profile import load_profile
+    from gcode_feedopt.twin.physics import _bins
+
+    prof = load_profile("ender3pro")
+    load = {"frequency_hz": 30.0, "load_ratio": 0.3, "corner_hz": 20.0, "form": "load"}
+    ax = dataclasses.replace(prof.axes["x"], effects=({"kind": "resonance_shift",
+                                                       "params": load},))
+    moved = dataclasses.replace(prof, axes={**prof.axes, "x": ax})
+    freq, h = _bins(prof, "x")
+    freq2, h2 = _bins(moved, "x")
+    s = 2j * np.pi * freq
+    np.testing.assert_array_equal(freq, freq2)
+    np.testing.assert_allclose(h2, h / (1 + 0.3 * (1 - h) * s / (s + 2 * np.pi * 20.0)),
+                               atol=1e-12)
+
+
+@pytest.mark.parametrize("corner", [50.0, 300.0])
+def test_the_force_on_a_loaded_loop_is_the_closed_form(corner):
+    """ModalModel.load_force: (1 − H)/(s (s + a)), the construction's integrator dropped."""
+    f = np.linspace(0.5, 300.0, 700)
+    s = 2j * np.pi * f
+    h = SERVO.response(f)
+    np.testing.assert_allclose(SERVO.load_force(corner).response(f),
+                               (1 - h) / (s * (s + corner)), rtol=1e-9, atol=1e-15)
+    assert SERVO.load_force(0.0) is None
+
+
+def test_a_pid_servos_table_force_is_washed_out_through_its_loop():
+    """A PID loop with its derivative on the measurement holding a mass m:
+    H = (K_p s + K_i)/(m s³ + K_d s² + K_p s + K_i). The force on the mass reaches it as
+    s/(m s³ + K_d s² + K_p s + K_i) = load_force(K_d/m)/m: zero at DC (the integrator takes a
+    steady force out), built from H and the corner alone."""
+    m, kd, kp, ki = 3.0, 900.0, 1.5e5, 2.0e6
+    den = np.array([m, kd, kp, ki])
+    p = np.roots(den)
+    # H as a ModalModel: its three poles (a pair and a real one) by partial fractions
+    from gcode_feedopt.twin.modal import _from_state_space
+    from scipy.signal import tf2ss
+    A, B, C, D = tf2ss([kp, ki], den)
+    H = _from_state_space(A, B[:, 0], C[0], float(D[0, 0]), 0.0)
+    f = np.linspace(0.5, 200.0, 400)
+    s = 2j * np.pi * f
+    np.testing.assert_allclose(H.response(f), np.polyval([kp, ki], s) / np.polyval(den, s),
+                               rtol=1e-9)
+    assert np.all(p.real < 0)
+    force = H.load_force(kd / m)
+    np.testing.assert_allclose(force.response(f), m * s / np.polyval(den, s), rtol=1e-7)
+    assert force.dc_gain == pytest.approx(0.0, abs=1e-12)
