@@ -523,7 +523,9 @@ def _friction(S: _Scorer):
     with its derivative on the measurement it is exact, the loop's dynamics on the way,
     which the integral form's washout through the force response only approximates
     (tests/foreign 900 x: −70.6 % in a steady form, −8.5 % through the loop, held out 16.6 →
-    4.3 µm). It faces the same bar as the integral form (τ and corners counted together);
+    4.3 µm). Tried on a loop only (a dominant mode that does not ring, as the load form):
+    on a belt + hotend (tests/foreign 708) it took the carriage's sticking friction. It
+    faces the same bar as the integral form (τ and corners counted together);
     each washed-out form is tested on its own residual and the best of those passing taken.
     Where the twin's mean misses the axis by far more than the force (905 x, 26 µm held
     out), the residual keeps 5–7 effective samples and neither passes (55 % low, as before).
@@ -575,7 +577,8 @@ def _friction(S: _Scorer):
     if best_int is not None and best_int[2] <= taus_i[0]:
         best_int = None  # unresolved: the lowest end of the scan
     corners, best_loop = [], None
-    if A.phys.load_force is not None:
+    zeta = A.phys.mode_zeta
+    if A.phys.load_force is not None and zeta is not None and zeta >= RINGING_ZETA:
         corners = [c * 2 * np.pi * A.phys.mode_hz for c in LOAD_CORNERS if c > 0]
         s0 = relax_sign(cmd, ts, 0.0)
         for a in corners:
@@ -778,7 +781,15 @@ def _cross_coupling(S: _Scorer, other: _Axis):
     path against the mean — two errors cancelling: through the frame −12.8 % against the
     mean, +2.0 % with the draw; tests/foreign 805: +60.6 % → +40 % → +2.5 %. Chosen against
     the mean, the form that best fitted the mean's miss won where the draw explains much (907
-    y, 802 x: the ``belt`` form, weight ~0, and the commanded coupling was missed)."""
+    y, 802 x: the ``belt`` form, weight ~0, and the commanded coupling was missed).
+
+    On a loop (a dominant mode that does not ring: a servo) also the predicted and the
+    commanded acceleration through the force path of the load the loop holds, (1 − H)/(s (s +
+    a)) (``ModalModel.load_force``, forms ``loop``, ``loop_command``, the corner a scanned
+    as the friction's, ``corner_hz``): a servo's table pushed by the other axis reaches the
+    sensor through its PID loop, which no command-path form carries — tests/foreign 900's and
+    905's couplings were sized 16–54 % low in those, 11–19 % through the loop, each with
+    its true source."""
     ts, hd = S.ts, S.hd
     po = other.p0
 
@@ -793,12 +804,28 @@ def _cross_coupling(S: _Scorer, other: _Axis):
     if fh is not None:
         forms["frame"] = respond(a, fh)[:, None]
         forms["frame_command"] = respond(other.cmd_acc, fh)[:, None]
+    # on a loop (its dominant mode does not ring), the force on the load it holds
+    corner = {}
+    zeta = S.A.phys.mode_zeta
+    if S.A.phys.load_force is not None and zeta is not None and zeta >= RINGING_ZETA:
+        for c in LOAD_CORNERS[1:]:
+            w = c * 2 * np.pi * S.A.phys.mode_hz
+            hf = S.A.phys.load_force(w)
+            if hf is None:
+                continue
+            for form, src in (("loop", a), ("loop_command", other.cmd_acc)):
+                key = f"{form}@{c:g}"
+                forms[key] = respond(src, hf)[:, None]
+                corner[key] = w
     # each form fitted once: scored on what the draw leaves (``score_draw``), the best kept
     models = {form: S.with_extra(G) for form, G in forms.items()}
     score = {form: -float(m.resid[S.fit] @ m.resid[S.fit]) for form, m in models.items()}
-    form = max(forms, key=lambda f: score[f])     # ties: the first, in the order above
-    m = models[form]
+    key = max(forms, key=lambda f: score[f])      # ties: the first, in the order above
+    m = models[key]
+    form = key.split("@")[0]
     name = "coefficient" if form == "position" else "mm_per_mm_s2"
     # chosen and sized with the plant draw fitted beside it (the only kind: docs/diagnose.md)
     params = {"from_axis": other.ax, name: float(m.theta[-1]), "form": form}
+    if key in corner:
+        params["corner_hz"] = float(corner[key] / (2 * np.pi))
     return ("cross_coupling", form, params, m, len(forms), 2)

@@ -46,7 +46,10 @@ then refined. A kind may have two forms, the one that fits better is taken (the 
   predicted acceleration through this axis's dynamics (form ``acceleration``, a frame force),
   its commanded acceleration through them (form ``command``, a motor force that follows the
   command), the predicted one through them twice (form ``belt``: a corexy's mismatched belts,
-  ``twin.extensions``), or its position (form ``position``, a skew).
+  ``twin.extensions``), the predicted or the commanded one through the response to a force
+  on the frame (forms ``frame``, ``frame_command``) or, on a loop, on the load it holds
+  (forms ``loop``, ``loop_command``, with ``corner_hz``), or its position (form
+  ``position``, a skew).
 
 **3. The test (stated).** Candidates are ranked by the sum of squares they explain on the fit
 part. A candidate is named only if all hold:

@@ -172,7 +172,10 @@ def _read_axis(sec: _Section, base_dir: pathlib.Path | None) -> AxisModel:
         ps.check_unknown()
         es.check_unknown()
         needs = {("resonance_shift", "load"): ("load_ratio", "corner_hz"),
-                 ("friction", "loop"): ("corner_hz",)}.get((kind, params.get("form")), ())
+                 ("friction", "loop"): ("corner_hz",),
+                 ("cross_coupling", "loop"): ("corner_hz",),
+                 ("cross_coupling", "loop_command"): ("corner_hz",)}.get(
+                     (kind, params.get("form")), ())
         missing = [n for n in needs if n not in params]
         if missing:
             raise ProfileError(f"{ps.origin}: {ps.where}: {kind} of form {params['form']} "

@@ -27,7 +27,9 @@ way ``diagnose`` fitted it:
   not its carriage's ringing), the predicted one through them twice (form ``belt``: a
   corexy whose two belts differ, see below), the predicted or the commanded one through the
   axis's response to a force on its frame (forms ``frame`` and ``frame_command``:
-  ``twin.physics.frame_model``, the command path's antiresonance taken out), or
+  ``twin.physics.frame_model``, the command path's antiresonance taken out) or the force
+  response of the load a loop holds at ``corner_hz`` (forms ``loop``, ``loop_command``:
+  ``ModalModel.load_force``, a servo's table), or
   ``coefficient`` times the other axis's predicted motion (form ``position``);
 - ``gain``: besides its change of the response (about the first commanded sample, where the
   twin works), the constant (s − 1)·x_0 that a scale about the machine origin adds.
@@ -60,6 +62,8 @@ from .physics import axis_impulse, axis_physics
 LINEAR_KINDS = ("delay", "gain", "resonance_shift")
 #: kinds that add a deterministic term here
 ADDITIVE_KINDS = ("periodic_position", "backlash", "friction", "cross_coupling")
+#: cross-coupling forms whose force takes a path of its own (``_frame_h``)
+PATH_FORMS = ("frame", "frame_command", "loop", "loop_command")
 #: kinds that add variance
 VARIANCE_KINDS = ("periodic_time",)
 
@@ -79,8 +83,9 @@ PARAMS = {
                  "form": ("response", "force", "output", "integral", "stick", "loop")},
     "cross_coupling": {"from_axis": ("x", "y"), "mm_per_mm_s2": (-1.0, 1.0),
                        "coefficient": (-1.0, 1.0),
+                       "corner_hz": (0.0, 1e5),
                        "form": ("acceleration", "command", "belt", "position", "frame",
-                                "frame_command")},
+                                "frame_command", "loop", "loop_command")},
 }
 #: parameters a kind must have (the rest default as in ``DEFAULTS``)
 REQUIRED = {
@@ -141,8 +146,9 @@ def additive_term(kind: str, params: dict, cmd_mm: np.ndarray, ts_s: float, h: n
         other_cmd_mm: (K,) the other axis's commanded position (cross_coupling form ``command``).
         force_h: (n,) the force response (friction forms ``force``, ``integral``; form
             ``loop``: the load's, ``AxisPhysics.load_force``; else ``h`` is used).
-        frame_h: (n,) the frame response (cross_coupling forms ``frame``, ``frame_command``;
-            else ``h`` is used).
+        frame_h: (n,) the path's response of a cross_coupling of PATH_FORMS (forms ``frame``,
+            ``frame_command``: the frame's; ``loop``, ``loop_command``: the load's force
+            response, ``AxisPhysics.load_force``; else ``h`` is used).
         pred_mm: (K,) the axis's prediction, for the ``output`` forms (default h * cmd).
     """
     p = {**DEFAULTS.get(kind, {}), **params}
@@ -174,13 +180,14 @@ def additive_term(kind: str, params: dict, cmd_mm: np.ndarray, ts_s: float, h: n
             return p["magnitude_mm"] * s
         return p["magnitude_mm"] * respond(s, force_h if p["form"] == "force" and force_h is not None else h)
     if kind == "cross_coupling":
-        src = other_cmd_mm if p["form"] in ("command", "frame_command") else other_pred_mm
+        src = (other_cmd_mm if p["form"] in ("command", "frame_command", "loop_command")
+               else other_pred_mm)
         if src is None:
             return np.zeros(K)
         po = np.asarray(src, float)
-        if p["form"] in ("acceleration", "command", "belt", "frame", "frame_command"):
+        if p["form"] != "position":
             acc = np.gradient(np.gradient(po, ts_s), ts_s)
-            if p["form"] in ("frame", "frame_command"):
+            if p["form"] in PATH_FORMS:
                 return p["mm_per_mm_s2"] * respond(acc, h if frame_h is None else frame_h)
             g = respond(acc, h)
             return p["mm_per_mm_s2"] * (respond(g, h) if p["form"] == "belt" else g)
@@ -294,11 +301,15 @@ def _lazy_physics(profile):
 
 
 def _frame_h(phys, axis, effect):
-    """The axis's frame response (``phys``: ``_lazy_physics``) where ``effect`` is a
-    cross-coupling of a frame form, else None. A profile whose fit has no antiresonance
-    (``AxisPhysics.frame`` None) cannot have been diagnosed such a form; one edited by hand to
-    it gets the command path's response."""
-    if effect["kind"] != "cross_coupling" or effect["params"].get("form") not in (
-            "frame", "frame_command"):
+    """The response of a cross-coupling's own path (``phys``: ``_lazy_physics``): the axis's
+    frame response for a frame form, the load's force response at the written corner for a
+    loop form, else None. A profile whose fit has no such path (``AxisPhysics.frame`` None, no
+    modal physics) cannot have been diagnosed such a form; one edited by hand to it gets the
+    command path's response."""
+    form = effect["params"].get("form")
+    if effect["kind"] != "cross_coupling" or form not in PATH_FORMS:
         return None
+    if form in ("loop", "loop_command"):
+        lf = phys()[axis].load_force
+        return None if lf is None else lf(2 * np.pi * effect["params"]["corner_hz"])
     return phys()[axis].frame

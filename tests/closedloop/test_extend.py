@@ -58,7 +58,9 @@ def _loaded_mean(ratio, a):
 
 @pytest.mark.parametrize("kind, params, missing", [
     ("resonance_shift", {"frequency_hz": 30.0, "load_ratio": 0.3, "form": "load"}, "corner_hz"),
-    ("friction", {"magnitude_mm": 0.01, "form": "loop"}, "corner_hz")])
+    ("friction", {"magnitude_mm": 0.01, "form": "loop"}, "corner_hz"),
+    ("cross_coupling", {"from_axis": "y", "mm_per_mm_s2": 1e-6, "form": "loop_command"},
+     "corner_hz")])
 def test_a_form_without_its_parameter_is_refused_by_name(kind, params, missing, tmp_path):
     """A profile whose extension of form ``load`` / ``loop`` lacks the corner (edited by
     hand) is refused with the key that is missing, not run with a default."""

@@ -214,6 +214,9 @@ SETS = {
     "servo900": (900, True),
     # the same servo with the drive's effects: its table's friction through the loop
     "servo900more": (900, "more"),
+    # PID servo 905 (x 23.3 Hz ζ 0.47, y 44.3 Hz ζ 0.78), the drive's effects: y's table
+    # pushed as x is commanded
+    "servo905more": (905, "more"),
     "servo901": (901, True),
     "servo902": (902, True),
 }
@@ -776,6 +779,18 @@ def test_a_servos_friction_is_sized_through_the_loop_that_holds_its_table(datase
     assert d.holdout_rms_mm["after"][ax] < 0.4 * d.holdout_rms_mm["before"][ax]
 
 
+@pytest.mark.parametrize("source, form", [("actual", "loop"), ("command", "loop_command")])
+def test_a_servos_table_pushed_by_the_other_axis_is_sized_through_its_loop(source, form,
+                                                                           dataset):
+    """900 y (PID loop, 10.8 Hz ζ 0.89): x's acceleration pushing y's table was sized 44 and
+    48 % low through the command path (forms acceleration, command); through the force path
+    of the table its loop holds (forms loop, loop_command), 19 % low, each with its source."""
+    truth, g, d = _named(dataset("servo900more"), "cross_coupling", source)
+    assert g is not None and g["params"]["form"] == form, d.effects
+    tv = truth["params"]["mm_per_mm_s2"]
+    assert abs(g["params"]["mm_per_mm_s2"] - tv) <= 0.25 * tv, (truth, g)
+
+
 def test_a_fan_inside_a_modes_band_is_still_named(dataset):
     """The ring a fan must beat near a mode (diagnose._ring_bar) is driven by the motion; a
     fan at 41 Hz on an axis whose mode is at 41.9 Hz runs on regardless, and is named with
@@ -942,10 +957,12 @@ def test_a_servos_friction_is_washed_out_where_its_fit_has_no_real_pole(which, s
     ``integral`` and explains most of the held-out error — 901: 13.7 → 4.9 µm (a steady form,
     sized 77 % low, left 12.9), 902: 4.7 → 2.2 µm and its size within 5 % (−0.2 %; the
     steady form: −77.7 %, 4.2 µm). 901's size is +82 %: the label is a scale there, the lag
-    of the loop without its integrator (benchmarks/foreign_effects.py marks it ``*``)."""
+    of the loop without its integrator (benchmarks/foreign_effects.py marks it ``*``). Since
+    the force through the loop (form ``loop``) is tried too, 902's takes it: −2.9 %, 1.9 µm
+    held out."""
     truth, g, d = _named(dataset(which), "friction")
     assert g is not None, (truth, d.effects)
-    assert g["params"]["form"] == "integral", g
+    assert g["params"]["form"] in ("integral", "loop"), g
     ax = truth["axis"]
     assert d.holdout_rms_mm["after"][ax] < 0.5 * d.holdout_rms_mm["before"][ax], d.holdout_rms_mm
     if size_rel is not None:
@@ -961,7 +978,8 @@ def test_a_servos_friction_is_washed_out_where_its_fit_has_no_real_pole(which, s
     ("servo5more", "backlash", None, "input"),
     ("hotend708variants", "friction", None, "stick"),
     ("servo901", "resonance_shift", None, "load"),
-    ("servo900more", "friction", None, "loop")])
+    ("servo900more", "friction", None, "loop"),
+    ("servo905more", "cross_coupling", "command", "loop_command")])
 def test_a_written_extension_predicts_what_diagnose_reported(which, kind, source, form,
                                                              dataset, tmp_path):
     """Issue 19, point 4, for the ``frame_command`` and ``frame`` forms of a cross-coupling, the
@@ -973,7 +991,8 @@ def test_a_written_extension_predicts_what_diagnose_reported(which, kind, source
     lag −``lag_s``·v̂ of the twin's own prediction; the play of twice the lag on it), and a
     servo's loaded loop (a ``resonance_shift`` of form ``load``: the written ratio and
     corner load every member's fit, ``twin.physics.apply_effects``) and a friction through
-    it (form ``loop``: the force response at the written corner, ``AxisPhysics.load_force``)."""
+    it (form ``loop``: the force response at the written corner, ``AxisPhysics.load_force``),
+    as is a coupling on that table (form ``loop_command``)."""
     from gcode_feedopt.profile.io import save_profile
 
     from ..written_extension import diagnose_then_predict
@@ -990,7 +1009,9 @@ def test_a_written_extension_predicts_what_diagnose_reported(which, kind, source
     rms = got[ax]
     want = d["holdout_rms_mm"]["after"][ax]
     assert abs(rms - want) <= 0.1 * want, (rms, want)
-    assert want < 0.5 * d["holdout_rms_mm"]["before"][ax]
+    # a servo's coupling is small beside what its twin's mean misses (905 y: 4.8 → 3.3 µm)
+    most = 0.75 if which == "servo905more" else 0.5
+    assert want < most * d["holdout_rms_mm"]["before"][ax]
 
 
 def test_two_eccentricities_written_predict_what_diagnose_reported(dataset, tmp_path):

@@ -125,3 +125,39 @@ def test_a_frame_form_coupling_goes_through_the_frames_response():
         assert np.abs(off(cmd)[:, 0]).max() == 0.0
         through_cmd = 4e-6 * respond(acc(src), hy)
         assert np.abs(through_cmd - want).max() > 0.05 * np.abs(want).max()
+
+
+def test_a_loop_form_coupling_goes_through_the_loads_force_response():
+    """Forms ``loop`` / ``loop_command`` (a servo's table pushed by the other axis): the other
+    axis's predicted / commanded acceleration through the force response of the load the
+    axis's loop holds at the written corner (AxisPhysics.load_force): the closed form, the same
+    in ``predict``'s mean (mean_offsets) and the plan's (motion_offsets), and not the command
+    path's term."""
+    from gcode_feedopt.twin.extensions import mean_offsets
+    from gcode_feedopt.twin.physics import axis_impulse, axis_physics
+    from gcode_feedopt.vm.plant import respond
+
+    prof, _, path = _setup()
+    sch = plan_schedule("kinematic", path, prof, tolerance_mm=0.1, stringency=0.95)
+    cmd = path.position(sch.s_mm)[:, :2]
+    ts = prof.ts_s
+    load_y = axis_physics(prof)["y"].load_force(2 * np.pi * 60.0)
+    assert load_y is not None
+    hx, hy = (np.asarray(axis_impulse(prof, a).mean) for a in "xy")
+    hx, hy = hx / hx.sum(), hy / hy.sum()
+
+    def acc(p):
+        return np.gradient(np.gradient(p, ts), ts)
+
+    for form, src in (("loop", respond(cmd[:, 0], hx)), ("loop_command", cmd[:, 0])):
+        e = {"kind": "cross_coupling", "axis": "y",
+             "params": {"from_axis": "x", "mm_per_mm_s2": 4e-6, "corner_hz": 60.0,
+                        "form": form}}
+        ext = extend_profile(prof, [e])
+        want = 4e-6 * respond(acc(src), load_y)
+        off, _ = motion_offsets(ext)
+        np.testing.assert_allclose(off(cmd)[:, 1], want, atol=1e-12)
+        np.testing.assert_allclose(mean_offsets(ext, cmd)[:, 1], want, atol=1e-12)
+        assert np.abs(off(cmd)[:, 0]).max() == 0.0
+        through_cmd = 4e-6 * respond(acc(src), hy)
+        assert np.abs(through_cmd - want).max() > 0.05 * np.abs(want).max()

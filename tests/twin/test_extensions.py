@@ -90,3 +90,25 @@ def test_a_friction_through_the_loop_is_its_force_response_at_the_magnitude():
     got = additive_term("friction", p, cmd, TS, h, force_h=hf)
     np.testing.assert_allclose(got, 0.02 * respond(relax_sign(cmd, TS, 0.0), hf), atol=1e-15)
     assert "loop" in PARAMS["friction"]["form"] and "corner_hz" in PARAMS["friction"]
+
+
+def test_a_coupling_through_the_loop_is_the_other_axiss_acceleration_through_its_path():
+    """Forms ``loop`` (the other axis's predicted position) and ``loop_command`` (its
+    command): their acceleration through the path's response (frame_h) times the weight."""
+    from gcode_feedopt.vm.plant import respond
+
+    cmd = _ramp_and_hold()
+    other_cmd = 0.5 * cmd[::-1].copy()
+    other_pred = other_cmd + 0.01 * np.sin(np.arange(cmd.size) / 7.0)
+    h = np.exp(-np.arange(40) / 6.0)
+    h /= h.sum()
+    hf = np.diff(np.exp(-np.arange(41) / 9.0))
+
+    def acc(p):
+        return np.gradient(np.gradient(p, TS), TS)
+
+    for form, src in (("loop", other_pred), ("loop_command", other_cmd)):
+        p = {"from_axis": "x", "mm_per_mm_s2": 3e-6, "corner_hz": 40.0, "form": form}
+        got = additive_term("cross_coupling", p, cmd, TS, h, other_pred_mm=other_pred,
+                            other_cmd_mm=other_cmd, frame_h=hf)
+        np.testing.assert_allclose(got, 3e-6 * respond(acc(src), hf), atol=1e-15)

@@ -504,3 +504,19 @@ def test_a_pid_servos_table_force_is_washed_out_through_its_loop():
     force = H.load_force(kd / m)
     np.testing.assert_allclose(force.response(f), m * s / np.polyval(den, s), rtol=1e-7)
     assert force.dc_gain == pytest.approx(0.0, abs=1e-12)
+
+
+def test_the_pair_at_the_peak_is_a_mode_not_a_fits_needle():
+    """pair_at_peak_hz: the pair nearest the peak of |H|, but not a near pole–zero
+    cancellation a fit leaves (share of the DC gain < PAIR_SHARE), whose needle peak may be
+    the highest (tests/foreign 402 y: 10.6 Hz, ζ 0.0035, share 0.008, beside its loop at
+    24.8 Hz, ζ 0.83)."""
+    loop = ModalModel(np.array([24.8, 368.0]), np.array([0.83, 0.54]),
+                      np.array([1098.0, -1016.0]), np.array([1.25, -0.19]), lag_s=0.0317)
+    needle = ModalModel(np.array([10.56, 24.8, 368.0]), np.array([0.0035, 0.83, 0.54]),
+                        np.array([-0.088, 1098.0, -1016.0]), np.array([0.0068, 1.25, -0.19]),
+                        lag_s=0.0317)
+    f = np.arange(1.0, 250.0, 0.05)
+    assert f[np.argmax(np.abs(needle.response(f)))] == pytest.approx(10.55, abs=0.1)
+    assert needle.pair_at_peak_hz(1.0, 250.0) == pytest.approx(24.8)
+    assert loop.pair_at_peak_hz(1.0, 250.0) == pytest.approx(24.8)
