@@ -562,36 +562,29 @@ def _friction(S: _Scorer):
                             coarse=lambda mag: S.quick_pred(stuck(mag)))
     if best is None or v > best[0]:
         best = (v, "stick", mag, A.fit_model(stuck(mag), S.extra, S.lag))
-    fh = A.phys.force if A.phys.force is not None else hd
-    taus_i = INTEGRAL_TAU_S
-    best_int = None
-    for tau_i in taus_i:
-        G = respond(integral_sign(cmd, ts, tau_i), fh)[:, None]
-        m = S.with_extra(G)
-        if not (m.w_mean[-1] > 0 and m.theta[-1] > 0):
-            continue
-        e = m.resid_mean[fit]
-        v = -float(e @ e)
-        if best_int is None or v > best_int[0]:
-            best_int = (v, "integral", tau_i, m)
-    if best_int is not None and best_int[2] <= taus_i[0]:
-        best_int = None  # unresolved: the lowest end of the scan
-    corners, best_loop = [], None
-    zeta = A.phys.mode_zeta
-    if A.phys.load_force is not None and zeta is not None and zeta >= RINGING_ZETA:
-        corners = [c * 2 * np.pi * A.phys.mode_hz for c in LOAD_CORNERS if c > 0]
-        s0 = relax_sign(cmd, ts, 0.0)
-        for a in corners:
-            hf = A.phys.load_force(a)
-            if hf is None:
-                continue
-            m = S.with_extra(respond(s0, hf)[:, None])
+    def best_lag(form, columns):
+        """(score, form, parameter, model) of the best of (parameter, column) fitted as a
+        lag against the mean and with the draw, or None."""
+        out = None
+        for par, G in columns:
+            m = S.with_extra(G[:, None])
             if not (m.w_mean[-1] > 0 and m.theta[-1] > 0):
                 continue
             e = m.resid_mean[fit]
             v = -float(e @ e)
-            if best_loop is None or v > best_loop[0]:
-                best_loop = (v, "loop", a, m)
+            if out is None or v > out[0]:
+                out = (v, form, par, m)
+        return out
+
+    fh = A.phys.force if A.phys.force is not None else hd
+    taus_i = INTEGRAL_TAU_S
+    best_int = best_lag("integral", ((t, respond(integral_sign(cmd, ts, t), fh)) for t in taus_i))
+    if best_int is not None and best_int[2] <= taus_i[0]:
+        best_int = None  # unresolved: the lowest end of the scan
+    corners = _loop_corners(A)
+    s0 = relax_sign(cmd, ts, 0.0)
+    best_loop = best_lag("loop", ((a, respond(s0, hf)) for a, hf in
+                                  ((a, A.phys.load_force(a)) for a in corners) if hf is not None))
     # a washed-out form must beat the steady ones significantly; of those that do, the best
     bar = stats.chi2.ppf(1.0 - INTEGRAL_ALPHA / (len(taus_i) + len(corners)), 1)
     washed = []
@@ -700,6 +693,16 @@ def _resonance_shift(S: _Scorer):
     return ("resonance_shift", "load", params, m_l, tried, 2)
 
 
+def _loop_corners(A: _Axis) -> list:
+    """The velocity-feedback corners a (rad/s, LOAD_CORNERS above 0 times the dominant mode's
+    ω) the loop forms scan on axis A, or [] where A is no loop: its dominant mode rings (ζ <
+    RINGING_ZETA, a belt's) or there is no modal physics (``_loaded``'s docstring says why)."""
+    zeta = A.phys.mode_zeta
+    if A.phys.load_force is None or zeta is None or zeta < RINGING_ZETA:
+        return []
+    return [c * 2 * np.pi * A.phys.mode_hz for c in LOAD_CORNERS if c > 0]
+
+
 def _loaded(S: _Scorer, v_best: float):
     """``_resonance_shift``'s form ``load`` where it beats ``v_best`` (the one-parameter
     forms' best fit-part score) significantly: ((ratio, a rad/s) or None, points tried).
@@ -712,11 +715,9 @@ def _loaded(S: _Scorer, v_best: float):
     a phase lead or lag. A best corner at the top of the scan is no sign of that on a loop:
     901 x's real shift, fitted as two pairs at 16.1 / 18.7 Hz, is best there too.)"""
     A, cmd, pred = S.A, S.cmd, S.pred
-    zeta = A.phys.mode_zeta
-    if A.phys.loaded is None or zeta is None or zeta < RINGING_ZETA:
+    if A.phys.loaded is None or not _loop_corners(A):
         return None, 0
-    w_d = 2 * np.pi * A.phys.mode_hz
-    corners = [c * w_d for c in LOAD_CORNERS]
+    corners = [0.0] + _loop_corners(A)
     n = len(LOAD_RATIOS) * len(corners) + 2 * 18
 
     def p_of(ratio, a):
@@ -806,17 +807,14 @@ def _cross_coupling(S: _Scorer, other: _Axis):
         forms["frame_command"] = respond(other.cmd_acc, fh)[:, None]
     # on a loop (its dominant mode does not ring), the force on the load it holds
     corner = {}
-    zeta = S.A.phys.mode_zeta
-    if S.A.phys.load_force is not None and zeta is not None and zeta >= RINGING_ZETA:
-        for c in LOAD_CORNERS[1:]:
-            w = c * 2 * np.pi * S.A.phys.mode_hz
-            hf = S.A.phys.load_force(w)
-            if hf is None:
-                continue
-            for form, src in (("loop", a), ("loop_command", other.cmd_acc)):
-                key = f"{form}@{c:g}"
-                forms[key] = respond(src, hf)[:, None]
-                corner[key] = w
+    for w in _loop_corners(S.A):
+        hf = S.A.phys.load_force(w)
+        if hf is None:
+            continue
+        for form, src in (("loop", a), ("loop_command", other.cmd_acc)):
+            key = f"{form}@{w:g}"
+            forms[key] = respond(src, hf)[:, None]
+            corner[key] = w
     # each form fitted once: scored on what the draw leaves (``score_draw``), the best kept
     models = {form: S.with_extra(G) for form, G in forms.items()}
     score = {form: -float(m.resid[S.fit] @ m.resid[S.fit]) for form, m in models.items()}

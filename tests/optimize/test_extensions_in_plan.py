@@ -5,6 +5,7 @@ through the slow-down's windows exactly as over the whole file."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from gcode_feedopt import pipeline
 from gcode_feedopt.closedloop.extend import extend_profile
@@ -92,11 +93,15 @@ def test_a_command_form_coupling_follows_the_other_axiss_command():
     assert np.abs(acc - want).max() > 0.1 * np.abs(want).max()
 
 
-def test_a_frame_form_coupling_goes_through_the_frames_response():
+@pytest.mark.parametrize("forms, extra", [(("frame", "frame_command"), {}),
+                                           (("loop", "loop_command"), {"corner_hz": 60.0})])
+def test_a_coupling_of_its_own_path_goes_through_that_paths_response(forms, extra):
     """Forms ``frame`` / ``frame_command``: the other axis's predicted / commanded
     acceleration through this axis's response to a force on its frame
-    (twin.physics.frame_model; ender3pro's fit has the antiresonance it takes out): the
-    closed form, the same in ``predict``'s mean (mean_offsets) and the plan's
+    (twin.physics.frame_model; ender3pro's fit has the antiresonance it takes out); forms
+    ``loop`` / ``loop_command`` (a servo's table pushed by the other axis): through the force
+    response of the load the axis's loop holds at the written corner (AxisPhysics.load_force).
+    The closed form, the same in ``predict``'s mean (mean_offsets) and the plan's
     (motion_offsets), and not the command path's term."""
     from gcode_feedopt.twin.extensions import mean_offsets
     from gcode_feedopt.twin.physics import axis_impulse, axis_physics
@@ -106,55 +111,20 @@ def test_a_frame_form_coupling_goes_through_the_frames_response():
     sch = plan_schedule("kinematic", path, prof, tolerance_mm=0.1, stringency=0.95)
     cmd = path.position(sch.s_mm)[:, :2]
     ts = prof.ts_s
-    frame_y = axis_physics(prof)["y"].frame
-    assert frame_y is not None
+    phys = axis_physics(prof)["y"]
+    path_y = phys.frame if forms[0] == "frame" else phys.load_force(2 * np.pi * 60.0)
+    assert path_y is not None
     hx, hy = (np.asarray(axis_impulse(prof, a).mean) for a in "xy")
     hx, hy = hx / hx.sum(), hy / hy.sum()
 
     def acc(p):
         return np.gradient(np.gradient(p, ts), ts)
 
-    for form, src in (("frame", respond(cmd[:, 0], hx)), ("frame_command", cmd[:, 0])):
+    for form, src in zip(forms, (respond(cmd[:, 0], hx), cmd[:, 0])):
         e = {"kind": "cross_coupling", "axis": "y",
-             "params": {"from_axis": "x", "mm_per_mm_s2": 4e-6, "form": form}}
+             "params": {"from_axis": "x", "mm_per_mm_s2": 4e-6, "form": form, **extra}}
         ext = extend_profile(prof, [e])
-        want = 4e-6 * respond(acc(src), frame_y)
-        off, _ = motion_offsets(ext)
-        np.testing.assert_allclose(off(cmd)[:, 1], want, atol=1e-12)
-        np.testing.assert_allclose(mean_offsets(ext, cmd)[:, 1], want, atol=1e-12)
-        assert np.abs(off(cmd)[:, 0]).max() == 0.0
-        through_cmd = 4e-6 * respond(acc(src), hy)
-        assert np.abs(through_cmd - want).max() > 0.05 * np.abs(want).max()
-
-
-def test_a_loop_form_coupling_goes_through_the_loads_force_response():
-    """Forms ``loop`` / ``loop_command`` (a servo's table pushed by the other axis): the other
-    axis's predicted / commanded acceleration through the force response of the load the
-    axis's loop holds at the written corner (AxisPhysics.load_force): the closed form, the same
-    in ``predict``'s mean (mean_offsets) and the plan's (motion_offsets), and not the command
-    path's term."""
-    from gcode_feedopt.twin.extensions import mean_offsets
-    from gcode_feedopt.twin.physics import axis_impulse, axis_physics
-    from gcode_feedopt.vm.plant import respond
-
-    prof, _, path = _setup()
-    sch = plan_schedule("kinematic", path, prof, tolerance_mm=0.1, stringency=0.95)
-    cmd = path.position(sch.s_mm)[:, :2]
-    ts = prof.ts_s
-    load_y = axis_physics(prof)["y"].load_force(2 * np.pi * 60.0)
-    assert load_y is not None
-    hx, hy = (np.asarray(axis_impulse(prof, a).mean) for a in "xy")
-    hx, hy = hx / hx.sum(), hy / hy.sum()
-
-    def acc(p):
-        return np.gradient(np.gradient(p, ts), ts)
-
-    for form, src in (("loop", respond(cmd[:, 0], hx)), ("loop_command", cmd[:, 0])):
-        e = {"kind": "cross_coupling", "axis": "y",
-             "params": {"from_axis": "x", "mm_per_mm_s2": 4e-6, "corner_hz": 60.0,
-                        "form": form}}
-        ext = extend_profile(prof, [e])
-        want = 4e-6 * respond(acc(src), load_y)
+        want = 4e-6 * respond(acc(src), path_y)
         off, _ = motion_offsets(ext)
         np.testing.assert_allclose(off(cmd)[:, 1], want, atol=1e-12)
         np.testing.assert_allclose(mean_offsets(ext, cmd)[:, 1], want, atol=1e-12)
