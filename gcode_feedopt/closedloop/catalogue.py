@@ -13,6 +13,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import numpy as np
+import scipy.fft
 from scipy import stats
 
 from ..twin.extensions import integral_sign, relax_sign
@@ -48,16 +49,15 @@ def _n_eff(r: np.ndarray) -> float:
     if n < 4:
         return float(max(n, 1))
     x = r - r.mean()
-    f = np.fft.rfft(x, 2 * n)
-    ac = np.fft.irfft(f * np.conj(f))[:n]
+    m = scipy.fft.next_fast_len(2 * n, real=True)   # ≥ 2n − 1: the linear autocorrelation
+    f = np.fft.rfft(x, m)
+    ac = np.fft.irfft(f * np.conj(f), m)[:n]
     if ac[0] <= 0:
         return float(n)
-    rho = ac / ac[0]
-    s = 0.0
-    for k in range(1, min(n - 1, 2000)):
-        if rho[k] <= 0:
-            break
-        s += rho[k]
+    rho = ac[1:min(n - 1, 2000)] / ac[0]
+    stop = np.flatnonzero(rho <= 0)
+    pos = rho[:stop[0]] if stop.size else rho
+    s = float(np.cumsum(pos)[-1]) if pos.size else 0.0    # summed in order, as a loop would
     return float(max(n / (1.0 + 2.0 * s), 2.0))
 
 
@@ -715,9 +715,10 @@ def _loaded(S: _Scorer, v_best: float):
     a phase lead or lag. A best corner at the top of the scan is no sign of that on a loop:
     901 x's real shift, fitted as two pairs at 16.1 / 18.7 Hz, is best there too.)"""
     A, cmd, pred = S.A, S.cmd, S.pred
-    if A.phys.loaded is None or not _loop_corners(A):
+    loop = _loop_corners(A)
+    if A.phys.loaded is None or not loop:
         return None, 0
-    corners = [0.0] + _loop_corners(A)
+    corners = [0.0] + loop
     n = len(LOAD_RATIOS) * len(corners) + 2 * 18
 
     def p_of(ratio, a):

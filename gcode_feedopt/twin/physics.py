@@ -66,12 +66,18 @@ def axis_modal(profile, axis: str, *, warn: bool = True) -> AxisModal:
     k = _key(frf.freq_hz, frf.response, "modal", dc, profile.ts_s, n_taps, ax.effects)
     got = _CACHE.get(k)
     if got is None:
-        try:
-            got = fit_axis(frf.freq_hz, frf.response, frf.labels, axis=axis, dc_gain=dc,
-                           nyquist_hz=0.5 / profile.ts_s)
-        except ValueError as exc:
-            raise ProfileError(f"profile {profile.name}, axis {axis}: {exc}") from None
-        got = apply_effects(got, ax.effects, profile.ts_s)
+        # the fit, once per FRF set: an extended profile (diagnose's "after", learn's
+        # written effects) differs only in the effects applied to it
+        k_fit = _key(frf.freq_hz, frf.response, "fit", dc, profile.ts_s, axis, tuple(frf.labels))
+        fit = _CACHE.get(k_fit)
+        if fit is None:
+            try:
+                fit = fit_axis(frf.freq_hz, frf.response, frf.labels, axis=axis, dc_gain=dc,
+                               nyquist_hz=0.5 / profile.ts_s)
+            except ValueError as exc:
+                raise ProfileError(f"profile {profile.name}, axis {axis}: {exc}") from None
+            _CACHE[k_fit] = fit
+        got = apply_effects(fit, ax.effects, profile.ts_s)
         got = dataclasses.replace(got, warnings=got.warnings + _memory_warnings(got, profile.ts_s,
                                                                                 n_taps))
         _CACHE[k] = got
@@ -495,7 +501,16 @@ def axis_physics(profile) -> dict:
     for ax in ("x", "y"):
         mean, L = imp[ax]
         shifted = loaded = loaded_hz = load_force = None
+        k = None
         if profile.twin.physics == "modal":
+            # cached with its closures' caches: each log a diagnosis reads, and each round of
+            # it, scans the same moved and loaded responses (keyed as axis_impulse's)
+            frf = profile.axes[ax].frf
+            k = _key(frf.freq_hz, frf.response, "phys", dc_gain_of(profile), profile.ts_s,
+                     profile.twin.n_taps, profile.axes[ax].effects)
+            if k in _CACHE:
+                out[ax] = _CACHE[k]
+                continue
             fits = axis_modal(profile, ax)
             mm = fits.mean_model()
             dom = mm.dominant
@@ -516,12 +531,19 @@ def axis_physics(profile) -> dict:
 
             f_top = min(400.0, 0.5 / ts)
 
-            lcache = {}
+            lmodels, lcache = {}, {}
 
-            def loaded(ratio, a, mm=mm, ts=ts, n=n, h_mm=h_mm, mean=mean, cache=lcache):
+            def loaded_model(ratio, a, mm=mm, cache=lmodels):
                 key = (round(float(ratio), 9), round(float(a), 6))
                 if key not in cache:
-                    lm = mm.loaded(ratio, a)
+                    cache[key] = mm.loaded(ratio, a)
+                return cache[key]
+
+            def loaded(ratio, a, ts=ts, n=n, h_mm=h_mm, mean=mean, cache=lcache,
+                       loaded_model=loaded_model):
+                key = (round(float(ratio), 9), round(float(a), 6))
+                if key not in cache:
+                    lm = loaded_model(ratio, a)
                     h = None if lm is None else (mean - h_mm / np.sum(h_mm)
                                                  + lm.impulse(ts, n) / np.sum(h_mm))
                     cache[key] = None if h is None else h / np.sum(h)
@@ -538,8 +560,8 @@ def axis_physics(profile) -> dict:
                     cache[key] = h / peak if peak > 0 and np.isfinite(peak) else None
                 return cache[key]
 
-            def loaded_hz(ratio, a, mm=mm, f_top=f_top):
-                lm = mm.loaded(ratio, a)
+            def loaded_hz(ratio, a, f_top=f_top, loaded_model=loaded_model):
+                lm = loaded_model(ratio, a)
                 return math.nan if lm is None else lm.pair_at_peak_hz(1.0, f_top)
 
             mode = f_dom
@@ -573,6 +595,8 @@ def axis_physics(profile) -> dict:
                               mode_span_hz=span, mode_scan_hz=scan, mode_zeta=zeta,
                               integral_action=integral,
                               model=model, members=members, band_hz=band)
+        if k is not None:
+            _CACHE[k] = out[ax]
     return out
 
 

@@ -303,3 +303,33 @@ def test_the_frame_response_of_a_fitted_belt_and_hotend_is_its_force_path():
     ratio = got.response(fb) / want
     assert np.max(np.abs(ratio - 1)) < 1e-4, ratio
     assert np.max(np.abs(np.abs(ch.frf(fb) / want) - 1)) > 0.5
+
+
+def test_each_axis_loads_its_own_loop():
+    """``AxisPhysics.loaded``, ``loaded_hz`` and ``load_force`` of each axis are its own
+    representative model's (ModalModel.loaded, load_force) laid on its members' mean, as
+    written out here: the closures of the two axes share no state (a cache bound late once
+    gave x the y axis's loaded models), and a second ``axis_physics`` of the same profile is
+    the cached one, its scans kept."""
+    from gcode_feedopt.twin.physics import axis_physics, mean_model, nominal_impulse
+
+    prof = load_profile("ender3pro")
+    phys = axis_physics(prof)
+    assert axis_physics(prof)["x"] is phys["x"]
+    ratio, a = 0.3, 2 * math.pi * 25.0
+    got = {}
+    for ax in "xy":
+        mm = mean_model(prof, ax)
+        mean = nominal_impulse(prof)[ax][0]
+        n, ts = mean.size, prof.ts_s
+        h_mm = mm.impulse(ts, n)
+        want = mean - h_mm / np.sum(h_mm) + mm.loaded(ratio, a).impulse(ts, n) / np.sum(h_mm)
+        want /= np.sum(want)
+        got[ax] = phys[ax].loaded(ratio, a)
+        np.testing.assert_allclose(got[ax], want, rtol=0, atol=1e-12)
+        f_top = min(400.0, 0.5 / ts)
+        assert phys[ax].loaded_hz(ratio, a) == mm.loaded(ratio, a).pair_at_peak_hz(1.0, f_top)
+        hf = mm.load_force(a).impulse(ts, n)
+        np.testing.assert_allclose(phys[ax].load_force(a),
+                                   hf / np.max(np.abs(np.cumsum(hf))), rtol=0, atol=1e-12)
+    assert np.max(np.abs(got["x"] - got["y"])) > 1e-3 * np.max(np.abs(got["x"]))
