@@ -62,7 +62,7 @@ from .physics import axis_impulse, axis_physics
 LINEAR_KINDS = ("delay", "gain", "resonance_shift")
 #: kinds that add a deterministic term here
 ADDITIVE_KINDS = ("periodic_position", "backlash", "friction", "cross_coupling")
-#: cross-coupling forms whose force takes a path of its own (``_frame_h``)
+#: cross-coupling forms whose force takes a path of its own (``_path_h``)
 PATH_FORMS = ("frame", "frame_command", "loop", "loop_command")
 #: kinds that add variance
 VARIANCE_KINDS = ("periodic_time",)
@@ -134,21 +134,21 @@ def lag_regressor(pred_mm: np.ndarray, ts_s: float) -> np.ndarray:
 
 
 def additive_term(kind: str, params: dict, cmd_mm: np.ndarray, ts_s: float, h: np.ndarray, *,
-                  other_pred_mm: np.ndarray | None = None, force_h: np.ndarray | None = None,
+                  other_pred_mm: np.ndarray | None = None,
                   pred_mm: np.ndarray | None = None,
                   other_cmd_mm: np.ndarray | None = None,
-                  frame_h: np.ndarray | None = None) -> np.ndarray:
+                  path_h: np.ndarray | None = None) -> np.ndarray:
     """(K,) the deterministic term one extension adds to an axis's predicted position, mm.
 
     Args:
         cmd_mm: (K,) the axis's commanded position. h: (n,) its unit-DC impulse response.
         other_pred_mm: (K,) the other axis's predicted position (cross_coupling).
         other_cmd_mm: (K,) the other axis's commanded position (cross_coupling form ``command``).
-        force_h: (n,) the force response (friction forms ``force``, ``integral``; form
-            ``loop``: the load's, ``AxisPhysics.load_force``; else ``h`` is used).
-        frame_h: (n,) the path's response of a cross_coupling of PATH_FORMS (forms ``frame``,
+        path_h: (n,) the response of the effect's own path (``_path_h``): a friction's force
+            response (forms ``force``, ``integral``; ``loop``: the load's,
+            ``AxisPhysics.load_force``), a cross_coupling's of PATH_FORMS (``frame``,
             ``frame_command``: the frame's; ``loop``, ``loop_command``: the load's force
-            response, ``AxisPhysics.load_force``; else ``h`` is used).
+            response); None: ``h`` is used.
         pred_mm: (K,) the axis's prediction, for the ``output`` forms (default h * cmd).
     """
     p = {**DEFAULTS.get(kind, {}), **params}
@@ -171,14 +171,11 @@ def additive_term(kind: str, params: dict, cmd_mm: np.ndarray, ts_s: float, h: n
             return fx.play(pred, 2.0 * p["magnitude_mm"]) - pred
         if p["form"] == "integral":
             s = integral_sign(cmd, ts_s, p["integral_s"])
-            return p["magnitude_mm"] * respond(s, h if force_h is None else force_h)
-        if p["form"] == "loop":
-            s = relax_sign(cmd, ts_s, 0.0)
-            return p["magnitude_mm"] * respond(s, h if force_h is None else force_h)
-        s = relax_sign(cmd, ts_s, p["relax_s"])
+        else:
+            s = relax_sign(cmd, ts_s, p["relax_s"])
         if p["form"] == "output":
             return p["magnitude_mm"] * s
-        return p["magnitude_mm"] * respond(s, force_h if p["form"] == "force" and force_h is not None else h)
+        return p["magnitude_mm"] * respond(s, h if path_h is None else path_h)
     if kind == "cross_coupling":
         src = (other_cmd_mm if p["form"] in ("command", "frame_command", "loop_command")
                else other_pred_mm)
@@ -188,7 +185,7 @@ def additive_term(kind: str, params: dict, cmd_mm: np.ndarray, ts_s: float, h: n
         if p["form"] != "position":
             acc = np.gradient(np.gradient(po, ts_s), ts_s)
             if p["form"] in PATH_FORMS:
-                return p["mm_per_mm_s2"] * respond(acc, h if frame_h is None else frame_h)
+                return p["mm_per_mm_s2"] * respond(acc, h if path_h is None else path_h)
             g = respond(acc, h)
             return p["mm_per_mm_s2"] * (respond(g, h) if p["form"] == "belt" else g)
         return p["coefficient"] * (po - po[0])
@@ -223,18 +220,11 @@ def mean_offsets(profile, cmd_mm: np.ndarray) -> np.ndarray:
         for e in profile.axes[ax].effects:
             if e["kind"] not in ADDITIVE_KINDS and e["kind"] != "gain":
                 continue
-            fh = None
-            if e["kind"] == "friction" and e["params"].get("form") in ("force", "integral"):
-                fh = phys()[ax].force
-            elif e["kind"] == "friction" and e["params"].get("form") == "loop":
-                lf = phys()[ax].load_force
-                fh = None if lf is None else lf(2 * np.pi * e["params"]["corner_hz"])
             other = e["params"].get("from_axis")
             out[:, i] += additive_term(e["kind"], e["params"], cmd[:, i], profile.ts_s, h[ax],
-                                       other_pred_mm=preds.get(other), force_h=fh,
-                                       pred_mm=preds[ax],
+                                       other_pred_mm=preds.get(other), pred_mm=preds[ax],
                                        other_cmd_mm=_column(cmd, axes, other),
-                                       frame_h=_frame_h(phys, ax, e))
+                                       path_h=_path_h(phys, ax, e))
     return out
 
 
@@ -266,17 +256,17 @@ def motion_offsets(profile):
     memory = (2 if twice else 1) * max(v.size for v in h.values()) + 4
 
     phys = _lazy_physics(profile)
-    frame = [_frame_h(phys, ax, e) for _, ax, e in todo]
+    paths = [_path_h(phys, ax, e) for _, ax, e in todo]
 
     def offsets(cmd_mm):
         cmd = np.asarray(cmd_mm, float)
         out = np.zeros((cmd.shape[0], 2))
         preds = {ax: respond(cmd[:, i], h[ax]) for i, ax in enumerate(axes)}
-        for (i, ax, e), fr in zip(todo, frame):
+        for (i, ax, e), path in zip(todo, paths):
             other = e["params"].get("from_axis")
             out[:, i] += additive_term(e["kind"], e["params"], cmd[:, i], profile.ts_s, h[ax],
                                        other_pred_mm=preds.get(other), pred_mm=preds[ax],
-                                       other_cmd_mm=_column(cmd, axes, other), frame_h=fr)
+                                       other_cmd_mm=_column(cmd, axes, other), path_h=path)
         return out
 
     return offsets, memory
@@ -300,16 +290,20 @@ def _lazy_physics(profile):
     return phys
 
 
-def _frame_h(phys, axis, effect):
-    """The response of a cross-coupling's own path (``phys``: ``_lazy_physics``): the axis's
-    frame response for a frame form, the load's force response at the written corner for a
-    loop form, else None. A profile whose fit has no such path (``AxisPhysics.frame`` None, no
-    modal physics) cannot have been diagnosed such a form; one edited by hand to it gets the
-    command path's response."""
-    form = effect["params"].get("form")
-    if effect["kind"] != "cross_coupling" or form not in PATH_FORMS:
-        return None
-    if form in ("loop", "loop_command"):
+def _path_h(phys, axis, effect):
+    """The response of an extension's own path (``phys``: ``_lazy_physics``), or None for
+    the command path's ``h``: a friction's force response (forms ``force``, ``integral``:
+    ``AxisPhysics.force``), a cross-coupling's frame response (``frame``, ``frame_command``),
+    and for the loop forms of both the load's force response at the written corner
+    (``AxisPhysics.load_force``). A profile whose fit has no such path (no modal physics, no
+    antiresonance, no loop) cannot have been diagnosed such a form; one edited by hand to it
+    gets the command path's response."""
+    kind, form = effect["kind"], effect["params"].get("form")
+    if kind == "friction" and form in ("force", "integral"):
+        return phys()[axis].force
+    if form in ("loop", "loop_command") and kind in ("friction", "cross_coupling"):
         lf = phys()[axis].load_force
         return None if lf is None else lf(2 * np.pi * effect["params"]["corner_hz"])
-    return phys()[axis].frame
+    if kind == "cross_coupling" and form in ("frame", "frame_command"):
+        return phys()[axis].frame
+    return None

@@ -43,12 +43,12 @@ def test_a_long_integral_time_is_the_steady_force_form():
     h = np.exp(-np.arange(40) / 6.0)
     h /= h.sum()
     p = {"magnitude_mm": 0.02}
-    steady = additive_term("friction", {**p, "form": "force"}, cmd, TS, h, force_h=h)
+    steady = additive_term("friction", {**p, "form": "force"}, cmd, TS, h, path_h=h)
     washed = additive_term("friction", {**p, "form": "integral", "integral_s": 1e4}, cmd, TS, h,
-                           force_h=h)
+                           path_h=h)
     assert np.max(np.abs(washed - steady)) < 1e-5 * 0.02 * 10
     short = additive_term("friction", {**p, "form": "integral", "integral_s": 0.02}, cmd, TS, h,
-                          force_h=h)
+                          path_h=h)
     # a short integral time: the lag is gone by the end of the move
     end = 50 + 299
     assert abs(short[end]) < 1e-3 * abs(steady[end])
@@ -78,7 +78,7 @@ def test_a_friction_that_sticks_lags_a_move_and_holds_through_the_reversal():
 
 def test_a_friction_through_the_loop_is_its_force_response_at_the_magnitude():
     """Form ``loop``: −sign(v_cmd) (no relaxation) through the load's force response
-    (``AxisPhysics.load_force``, passed as force_h), times the magnitude."""
+    (``AxisPhysics.load_force``, passed as path_h), times the magnitude."""
     from gcode_feedopt.twin.extensions import relax_sign
     from gcode_feedopt.vm.plant import respond
 
@@ -87,14 +87,14 @@ def test_a_friction_through_the_loop_is_its_force_response_at_the_magnitude():
     h /= h.sum()
     hf = np.diff(np.exp(-np.arange(41) / 9.0))            # a washed-out force response
     p = {"magnitude_mm": 0.02, "form": "loop", "corner_hz": 30.0}
-    got = additive_term("friction", p, cmd, TS, h, force_h=hf)
+    got = additive_term("friction", p, cmd, TS, h, path_h=hf)
     np.testing.assert_allclose(got, 0.02 * respond(relax_sign(cmd, TS, 0.0), hf), atol=1e-15)
     assert "loop" in PARAMS["friction"]["form"] and "corner_hz" in PARAMS["friction"]
 
 
 def test_a_coupling_through_the_loop_is_the_other_axiss_acceleration_through_its_path():
     """Forms ``loop`` (the other axis's predicted position) and ``loop_command`` (its
-    command): their acceleration through the path's response (frame_h) times the weight."""
+    command): their acceleration through the path's response (path_h) times the weight."""
     from gcode_feedopt.vm.plant import respond
 
     cmd = _ramp_and_hold()
@@ -110,5 +110,5 @@ def test_a_coupling_through_the_loop_is_the_other_axiss_acceleration_through_its
     for form, src in (("loop", other_pred), ("loop_command", other_cmd)):
         p = {"from_axis": "x", "mm_per_mm_s2": 3e-6, "corner_hz": 40.0, "form": form}
         got = additive_term("cross_coupling", p, cmd, TS, h, other_pred_mm=other_pred,
-                            other_cmd_mm=other_cmd, frame_h=hf)
+                            other_cmd_mm=other_cmd, path_h=hf)
         np.testing.assert_allclose(got, 3e-6 * respond(acc(src), hf), atol=1e-15)
