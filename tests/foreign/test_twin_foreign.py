@@ -217,6 +217,8 @@ SETS = {
     # PID servo 905 (x 23.3 Hz ζ 0.47, y 44.3 Hz ζ 0.78), the drive's effects: y's table
     # pushed as x is commanded
     "servo905more": (905, "more"),
+    # PID servo 906 (x 26.7 Hz ζ 0.54), the drive's effects: x's table's friction
+    "servo906more": (906, "more"),
     "servo901": (901, True),
     "servo902": (902, True),
 }
@@ -766,17 +768,23 @@ def test_a_servos_heavier_table_is_named_as_its_loop_loaded(which, rel, dataset)
         assert abs(g["params"]["frequency_hz"] - tv) <= rel * tv, (truth, g)
 
 
-def test_a_servos_friction_is_sized_through_the_loop_that_holds_its_table(dataset):
+@pytest.mark.parametrize("which, held_out", [("servo900more", 0.4), ("servo906more", 0.4),
+                                              ("servo905more", 0.8)])
+def test_a_servos_friction_is_sized_through_the_loop_that_holds_its_table(which, held_out,
+                                                                         dataset):
     """900 x (PID loop 50.3 Hz ζ 0.74, table 9.3 kg on a 0.6 kg motor): its table's friction
     was named 70.6 % low in a steady form (response), the held-out part 16.6 → 13.9 µm; through
     the loop, (1 − H)/(s (s + a)) with the corner scanned (ModalModel.load_force), −8.5 % and
-    16.6 → 4.3 µm (the label is F × the loop's compliance without its integrator)."""
-    truth, g, d = _named(dataset("servo900more"), "friction")
+    16.6 → 4.3 µm (the label is F × the loop's compliance without its integrator). 906 x and
+    905 x, whose twins miss the axis by 14–26 µm: against the mean no washed-out form passed
+    (−54, −55 % in a steady form); judged with the plant draw too, −5.3 and +5.0 %, held out
+    14.3 → 5.3 and 26.0 → 20.2 µm."""
+    truth, g, d = _named(dataset(which), "friction")
     assert g is not None and g["params"]["form"] == "loop", d.effects
     tv = truth["params"]["magnitude_mm"]
     assert abs(g["params"]["magnitude_mm"] - tv) <= 0.1 * tv, (truth, g)
     ax = truth["axis"]
-    assert d.holdout_rms_mm["after"][ax] < 0.4 * d.holdout_rms_mm["before"][ax]
+    assert d.holdout_rms_mm["after"][ax] < held_out * d.holdout_rms_mm["before"][ax]
 
 
 @pytest.mark.parametrize("source, form", [("actual", "loop"), ("command", "loop_command")])
