@@ -501,15 +501,15 @@ def axis_physics(profile) -> dict:
     for ax in ("x", "y"):
         mean, L = imp[ax]
         shifted = loaded = loaded_hz = load_force = None
-        k = None
+        key = None
         if profile.twin.physics == "modal":
             # cached with its closures' caches: each log a diagnosis reads, and each round of
             # it, scans the same moved and loaded responses (keyed as axis_impulse's)
             frf = profile.axes[ax].frf
-            k = _key(frf.freq_hz, frf.response, "phys", dc_gain_of(profile), profile.ts_s,
+            key = _key(frf.freq_hz, frf.response, "phys", dc_gain_of(profile), profile.ts_s,
                      profile.twin.n_taps, profile.axes[ax].effects)
-            if k in _CACHE:
-                out[ax] = _CACHE[k]
+            if key in _CACHE:
+                out[ax] = _CACHE[key]
                 continue
             fits = axis_modal(profile, ax)
             mm = fits.mean_model()
@@ -595,8 +595,8 @@ def axis_physics(profile) -> dict:
                               mode_span_hz=span, mode_scan_hz=scan, mode_zeta=zeta,
                               integral_action=integral,
                               model=model, members=members, band_hz=band)
-        if k is not None:
-            _CACHE[k] = out[ax]
+        if key is not None:
+            _CACHE[key] = out[ax]
     return out
 
 
